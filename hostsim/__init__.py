@@ -1,0 +1,1 @@
+"""Host-side tools for tipbot: model, gain design, simulator, fake EV3, replay."""

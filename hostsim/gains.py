@@ -1,0 +1,176 @@
+"""Gain generation: model -> linearization -> discretization -> LQR + detector -> JSON.
+
+``python -m hostsim.gains [--variant paper|physical|all] [--ts 0.005] [--params FILE]
+[--out-dir gains] [--check]`` writes ``gains/<variant>.json`` (schema in
+docs/architecture.md). Output is deterministic: no wall-clock time, floats rounded to 12
+significant digits, so regenerating gives the same bytes. ``--check`` compares instead of
+writing and exits 1 on a difference.
+"""
+import argparse
+import json
+import os
+import sys
+
+import numpy as np
+
+from hostsim import design
+from hostsim.errors import TipbotError
+from hostsim.model import ACTUATED_INPUTS, INPUT_NAMES, STATE_NAMES, RobotModel, get_variant, state_scale_to_si
+from hostsim.params import DEFAULT_PARAMS_PATH, REPO_ROOT, load_params, params_hash
+
+SCHEMA_VERSION = 1
+DEFAULT_TS_S = 0.005
+DEFAULT_OUT_DIR = os.path.join(REPO_ROOT, "gains")
+VARIANT_NAMES = ("paper", "physical")
+# The physical gains must also stabilize the paper's model: the two bracket what is least
+# certain about the drivetrain (rotor inertia Jm from 0 to Table 2's value, the wheel
+# motors' reaction on link 1 absent or present).
+ROBUST_AGAINST = ("paper",)
+
+
+def design_gains(variant, params, ts_s=DEFAULT_TS_S, detector_poles=None):
+    """Design everything the firmware needs for one model variant; returns a dict of arrays."""
+    if isinstance(variant, str):
+        variant = get_variant(variant)
+    model = RobotModel(variant, params)
+    ac, bc = model.linearize()
+    a, b = design.discretize(ac, bc, ts_s)
+    n = a.shape[0]
+    c = np.eye(n)
+    e_mat = b.copy()
+    cm_per_unit = variant.d_scale_m * 100.0
+    q, r = design.weights_in_units(design.PAPER_Q_DIAG_CM, design.PAPER_R_DIAG,
+                                   [cm_per_unit] * 2 + [1] * 3 + [cm_per_unit] * 2 + [1] * 3)
+    r_wheel_scale = 1.0
+    if variant.paper_conventions:
+        k, p, cl_eig = design.dlqr(a, b, q, r, ACTUATED_INPUTS)
+    else:
+        check_models = [_linear_model_si(get_variant(name), params, ts_s) for name in ROBUST_AGAINST]
+        r_wheel_scale, r, k, p, cl_eig = design.robust_wheel_weight(
+            a, b, q, r, ACTUATED_INPUTS, check_models, state_scale_to_si(variant))
+    k_w = design.disturbance_gain(a, b, q, r, k, p, e_mat)
+    l1, l2, g_w, det_eig = design.robust_detector(a, b, c, e_mat, ACTUATED_INPUTS, detector_poles)
+    return dict(variant=variant, model=model, ts_s=float(ts_s), A=a, B=b, C=c, E=e_mat, Q=q, R=r,
+                r_wheel_scale=r_wheel_scale,
+                K=k, P=p, K_w=k_w, L1=l1, L2=l2, G_w=g_w,
+                closed_loop_eigenvalues=cl_eig, detector_eigenvalues=det_eig,
+                structure=design.structure_report(a, b, c, ACTUATED_INPUTS))
+
+
+def _linear_model_si(variant, params, ts_s):
+    """Discrete (A, B) of a variant with the state in SI units."""
+    ac, bc = RobotModel(variant, params).linearize()
+    a, b = design.discretize(ac, bc, ts_s)
+    t = state_scale_to_si(variant)
+    return t @ a @ np.linalg.inv(t), t @ b
+
+
+def _num(x):
+    # 12 significant digits hide last-bit differences between LAPACK builds; + 0.0 folds -0.0.
+    return float("%.12g" % x) + 0.0
+
+
+def _matrix(m):
+    return [[_num(v) for v in row] for row in np.asarray(m, dtype=float)]
+
+
+def _generator():
+    import control
+    import scipy
+    import sympy
+    return "hostsim.gains (numpy %s, scipy %s, sympy %s, control %s)" % (
+        np.__version__, scipy.__version__, sympy.__version__, control.__version__)
+
+
+def to_document(g):
+    """The JSON document of a design (plain Python types, rounded floats)."""
+    variant, params = g["variant"], g["model"].params
+    st = g["structure"]
+    doc = {
+        "schema_version": SCHEMA_VERSION,
+        "model_variant": variant.name,
+        "model_options": variant.options(),
+        "ts_s": _num(g["ts_s"]),
+        "state_names": list(STATE_NAMES),
+        "state_units": list(variant.state_units),
+        "input_names": list(INPUT_NAMES),
+        "input_units": ["V"] * len(INPUT_NAMES),
+        "actuated_inputs": list(ACTUATED_INPUTS),
+        "u_max_v": _num(params["u_max_v"]),
+        "r_wheel_scale": _num(g["r_wheel_scale"]),
+        "closed_loop_spectral_radius": _num(np.max(np.abs(g["closed_loop_eigenvalues"]))),
+        "detector_eigenvalues": [_num(z.real) for z in sorted(g["detector_eigenvalues"], key=lambda z: z.real)],
+        "controllability_rank": st["controllability_rank"],
+        "observability_rank": st["observability_rank"],
+        "open_loop_eigenvalues_abs": [_num(abs(z)) for z in st["open_loop_eigenvalues"]],
+        "parameters": {k: _num(v) for k, v in sorted(params.items())},
+        "parameters_sha256": params_hash(params),
+        "generator": _generator(),
+    }
+    for key in ("A", "B", "C", "E", "K", "K_w", "L1", "L2", "G_w", "Q", "R"):
+        doc[key] = _matrix(g[key])
+    return doc
+
+
+def dumps(doc):
+    """JSON text with one matrix row per line (readable diffs), keys in a fixed order."""
+    lines = []
+    for key in sorted(doc, key=lambda k: (isinstance(doc[k], list) and doc[k] and isinstance(doc[k][0], list), k)):
+        value = doc[key]
+        if isinstance(value, list) and value and isinstance(value[0], list):
+            rows = ",\n".join("    " + json.dumps(row) for row in value)
+            lines.append('  %s: [\n%s\n  ]' % (json.dumps(key), rows))
+        else:
+            lines.append("  %s: %s" % (json.dumps(key), json.dumps(value, sort_keys=True)))
+    return "{\n" + ",\n".join(lines) + "\n}\n"
+
+
+def summary(g):
+    st = g["structure"]
+    ol = ", ".join("%.4g" % abs(z) for z in st["open_loop_eigenvalues"])
+    return "\n".join([
+        "variant %s: ts %.4g s, state units %s" % (g["variant"].name, g["ts_s"], "/".join(sorted(set(g["variant"].state_units)))),
+        "  controllability rank %d, observability rank %d (of 10)" % (st["controllability_rank"], st["observability_rank"]),
+        "  open-loop |eig|: %s" % ol,
+        "  closed-loop spectral radius of A - B K: %.6f" % np.max(np.abs(g["closed_loop_eigenvalues"])),
+        "  detector eigenvalues (Abar - L1 C): %s" % ", ".join("%.4g" % z.real for z in g["detector_eigenvalues"]),
+    ])
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(prog="python -m hostsim.gains", description=__doc__.split("\n\n")[0])
+    ap.add_argument("--variant", choices=VARIANT_NAMES + ("all",), default="all")
+    ap.add_argument("--ts", type=float, default=DEFAULT_TS_S, help="loop period in seconds (default 0.005)")
+    ap.add_argument("--params", default=DEFAULT_PARAMS_PATH, help="robot parameters JSON")
+    ap.add_argument("--out-dir", default=DEFAULT_OUT_DIR)
+    ap.add_argument("--check", action="store_true", help="compare with the files instead of writing them")
+    args = ap.parse_args(argv)
+    names = VARIANT_NAMES if args.variant == "all" else (args.variant,)
+    try:
+        params = load_params(args.params)
+        status = 0
+        for name in names:
+            g = design_gains(name, params, args.ts)
+            print(summary(g))
+            text = dumps(to_document(g))
+            path = os.path.join(args.out_dir, name + ".json")
+            if args.check:
+                old = open(path).read() if os.path.exists(path) else None
+                if old != text:
+                    print("  %s differs from a fresh generation: run make gains" % path)
+                    status = 1
+                else:
+                    print("  %s is up to date" % path)
+            else:
+                os.makedirs(args.out_dir, exist_ok=True)
+                with open(path, "w") as f:
+                    f.write(text)
+                print("  wrote %s" % os.path.relpath(path))
+        return status
+    except TipbotError as exc:
+        print("error: %s" % exc, file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

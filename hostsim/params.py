@@ -1,0 +1,72 @@
+"""Robot parameters: one JSON file, SI units, every value with its source.
+
+The file (default ``params/robot.json``) maps each parameter name to
+``{"value": number, "source": text}``. Names carry their unit. Loading checks every
+field and names the first bad one.
+"""
+import hashlib
+import json
+import math
+import os
+
+from hostsim.errors import ParameterError
+
+REPO_ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+DEFAULT_PARAMS_PATH = os.path.join(REPO_ROOT, "params", "robot.json")
+
+MOTOR_ROLES = ("right_wheel", "left_wheel", "joint2", "joint3")
+MOTOR_FIELDS = ("beta_nm_s", "ke_v_s", "km_nm_a", "ra_ohm", "jm_kg_m2")
+
+# Lengths, masses and inertias must be > 0; friction may be 0 (a frictionless motor is a
+# valid idealisation), nothing may be negative.
+POSITIVE = (
+    "l1_m", "l2_m", "l3_m", "m1_kg", "m2_kg", "m3_kg", "mw_kg", "rw_m", "track_m",
+    "j1_kg_m2", "j2_kg_m2", "j3_kg_m2", "jw_kg_m2", "g_m_s2", "u_max_v",
+) + tuple("%s_%s" % (r, f) for r in MOTOR_ROLES for f in ("ke_v_s", "km_nm_a", "ra_ohm", "jm_kg_m2"))
+NON_NEGATIVE = tuple("%s_beta_nm_s" % r for r in MOTOR_ROLES)
+REQUIRED = POSITIVE + NON_NEGATIVE
+
+
+def parse_params(doc, source="<parameters>"):
+    """Validate a parameters document (the parsed JSON) and return ``{name: float}``."""
+    if not isinstance(doc, dict) or not isinstance(doc.get("parameters"), dict):
+        raise ParameterError("%s: expected an object with a 'parameters' object" % source)
+    entries = doc["parameters"]
+    unknown = sorted(set(entries) - set(REQUIRED))
+    if unknown:
+        raise ParameterError("%s: unknown parameter '%s'" % (source, unknown[0]))
+    values = {}
+    for name in REQUIRED:
+        if name not in entries:
+            raise ParameterError("%s: missing parameter '%s'" % (source, name))
+        entry = entries[name]
+        raw = entry.get("value") if isinstance(entry, dict) else entry
+        if isinstance(raw, bool) or not isinstance(raw, (int, float)):
+            raise ParameterError("%s: parameter '%s' is not a number: %r" % (source, name, raw))
+        value = float(raw)
+        if not math.isfinite(value):
+            raise ParameterError("%s: parameter '%s' is not finite: %r" % (source, name, raw))
+        if name in POSITIVE and value <= 0.0:
+            raise ParameterError("%s: parameter '%s' must be positive, got %r" % (source, name, raw))
+        if name in NON_NEGATIVE and value < 0.0:
+            raise ParameterError("%s: parameter '%s' must not be negative, got %r" % (source, name, raw))
+        values[name] = value
+    return values
+
+
+def load_params(path=DEFAULT_PARAMS_PATH):
+    """Read and validate a parameters file; errors name the file and the field."""
+    try:
+        with open(path) as f:
+            doc = json.load(f)
+    except OSError as exc:
+        raise ParameterError("%s: cannot read parameters file: %s" % (path, exc.strerror or exc))
+    except ValueError as exc:
+        raise ParameterError("%s: not valid JSON: %s" % (path, exc))
+    return parse_params(doc, source=path)
+
+
+def params_hash(values):
+    """sha256 of the canonical JSON of the parameter values (what the gains were made from)."""
+    canon = json.dumps({k: repr(float(v)) for k, v in sorted(values.items())}, sort_keys=True)
+    return hashlib.sha256(canon.encode("ascii")).hexdigest()
