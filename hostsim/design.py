@@ -194,11 +194,13 @@ def robust_wheel_weight(a, b, q, r, actuated, check_models, to_si, wheel_inputs=
 
     ``check_models`` are (A, B) pairs with the state in SI; ``to_si`` maps this design's
     state to SI. The smallest multiplier of ``WHEEL_WEIGHT_LADDER`` for which every
-    closed loop (own model included) has spectral radius <= ROBUST_RADIUS_MAX wins.
-    Returns (multiplier, R used, K, P, closed-loop eigenvalues).
+    closed loop (own model included) has spectral radius <= ROBUST_RADIUS_MAX wins. When
+    none does (slow sampling can make it impossible), the plain design (multiplier 1) is
+    returned with ``robust`` False and the worst radius, for the caller to report.
+    Returns (multiplier, R used, K, P, closed-loop eigenvalues, robust, worst radius).
     """
     to_si_inv = np.linalg.inv(to_si)
-    worst = None
+    plain = None
     for factor in WHEEL_WEIGHT_LADDER:
         r_try = np.array(r, dtype=float)
         for j in wheel_inputs:
@@ -206,8 +208,8 @@ def robust_wheel_weight(a, b, q, r, actuated, check_models, to_si, wheel_inputs=
         k, p, e = dlqr(a, b, q, r_try, actuated)
         k_si = k @ to_si_inv
         radii = [np.max(np.abs(e))] + [np.max(np.abs(np.linalg.eigvals(am - bm @ k_si))) for am, bm in check_models]
-        worst = max(radii)
-        if worst <= ROBUST_RADIUS_MAX:
-            return factor, r_try, k, p, e
-    raise DesignError("no wheel input weight up to x%g gives a gain that stabilizes every model "
-                      "(worst spectral radius %.4f)" % (WHEEL_WEIGHT_LADDER[-1], worst))
+        if plain is None:
+            plain = (factor, r_try, k, p, e, False, max(radii))
+        if max(radii) <= ROBUST_RADIUS_MAX:
+            return factor, r_try, k, p, e, True, max(radii)
+    return plain

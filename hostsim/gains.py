@@ -41,17 +41,17 @@ def design_gains(variant, params, ts_s=DEFAULT_TS_S, detector_poles=None):
     cm_per_unit = variant.d_scale_m * 100.0
     q, r = design.weights_in_units(design.PAPER_Q_DIAG_CM, design.PAPER_R_DIAG,
                                    [cm_per_unit] * 2 + [1] * 3 + [cm_per_unit] * 2 + [1] * 3)
-    r_wheel_scale = 1.0
+    r_wheel_scale, robust, worst = 1.0, None, None
     if variant.paper_conventions:
         k, p, cl_eig = design.dlqr(a, b, q, r, ACTUATED_INPUTS)
     else:
         check_models = [_linear_model_si(get_variant(name), params, ts_s) for name in ROBUST_AGAINST]
-        r_wheel_scale, r, k, p, cl_eig = design.robust_wheel_weight(
+        r_wheel_scale, r, k, p, cl_eig, robust, worst = design.robust_wheel_weight(
             a, b, q, r, ACTUATED_INPUTS, check_models, state_scale_to_si(variant))
     k_w = design.disturbance_gain(a, b, q, r, k, p, e_mat)
     l1, l2, g_w, det_eig = design.robust_detector(a, b, c, e_mat, ACTUATED_INPUTS, detector_poles)
     return dict(variant=variant, model=model, ts_s=float(ts_s), A=a, B=b, C=c, E=e_mat, Q=q, R=r,
-                r_wheel_scale=r_wheel_scale,
+                r_wheel_scale=r_wheel_scale, robust_to_models=robust, robust_worst_radius=worst,
                 K=k, P=p, K_w=k_w, L1=l1, L2=l2, G_w=g_w,
                 closed_loop_eigenvalues=cl_eig, detector_eigenvalues=det_eig,
                 structure=design.structure_report(a, b, c, ACTUATED_INPUTS))
@@ -98,6 +98,9 @@ def to_document(g):
         "actuated_inputs": list(ACTUATED_INPUTS),
         "u_max_v": _num(params["u_max_v"]),
         "r_wheel_scale": _num(g["r_wheel_scale"]),
+        "robust_to_models": None if g["robust_to_models"] is None else {
+            "models": list(ROBUST_AGAINST), "stabilized": g["robust_to_models"],
+            "worst_spectral_radius": _num(g["robust_worst_radius"])},
         "closed_loop_spectral_radius": _num(np.max(np.abs(g["closed_loop_eigenvalues"]))),
         "detector_eigenvalues": [_num(z.real) for z in sorted(g["detector_eigenvalues"], key=lambda z: z.real)],
         "controllability_rank": st["controllability_rank"],
@@ -134,7 +137,17 @@ def summary(g):
         "  open-loop |eig|: %s" % ol,
         "  closed-loop spectral radius of A - B K: %.6f" % np.max(np.abs(g["closed_loop_eigenvalues"])),
         "  detector eigenvalues (Abar - L1 C): %s" % ", ".join("%.4g" % z.real for z in g["detector_eigenvalues"]),
-    ])
+    ] + robustness_lines(g))
+
+
+def robustness_lines(g):
+    if g["robust_to_models"] is None:
+        return []
+    if g["robust_to_models"]:
+        return ["  wheel input weight x%g: the gain also stabilizes the %s model(s) (worst radius %.5f)"
+                % (g["r_wheel_scale"], "/".join(ROBUST_AGAINST), g["robust_worst_radius"])]
+    return ["  WARNING: no wheel input weight makes this gain stabilize the %s model(s) at ts %.4g s "
+            "(worst radius %.4f); using the paper's weights" % ("/".join(ROBUST_AGAINST), g["ts_s"], g["robust_worst_radius"])]
 
 
 def main(argv=None):

@@ -1,0 +1,218 @@
+"""Gain design: LQR, finite horizon with disturbance, robust detector, errors, exported files."""
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from hostsim import design
+from hostsim.errors import DesignError
+from hostsim.gains import DEFAULT_OUT_DIR, design_gains, dumps, main as gains_main, to_document
+from hostsim.paper_check import TOLERANCE, cross_spectral_radii, run as paper_check_run
+from hostsim.params import REPO_ROOT, load_params
+
+VARIANTS = ("paper", "physical")
+
+
+@pytest.fixture(scope="module")
+def params():
+    return load_params()
+
+
+@pytest.fixture(scope="module")
+def designs(params):
+    return {v: design_gains(v, params) for v in VARIANTS}
+
+
+def test_paper_check_within_tolerance():
+    res = paper_check_run()
+    for key, (median, worst, count) in res["errors"].items():
+        assert count > 20, key
+        assert worst <= TOLERANCE, "%s: max relative error %.3f %%" % (key, worst * 100)
+        assert median < 0.001, key
+
+
+def test_both_gains_stabilize_both_models(designs):
+    radii = cross_spectral_radii(designs)
+    assert set(radii) == {(g, m) for g in VARIANTS for m in VARIANTS}
+    for pair, radius in radii.items():
+        assert radius < 1.0, "%s gains on %s model: spectral radius %.5f" % (pair + (radius,))
+
+
+@pytest.mark.parametrize("variant", VARIANTS)
+def test_detector_condition_and_eigenvalues(designs, variant):
+    g = designs[variant]
+    n = 10
+    residual = (g["L2"] @ g["C"] - np.eye(n)) @ g["E"]
+    assert np.abs(residual).max() < 1e-12
+    abar = (np.eye(n) - g["L2"] @ g["C"]) @ g["A"]
+    eig = np.linalg.eigvals(abar - g["L1"] @ g["C"])
+    assert np.allclose(np.sort(eig.real), design.DEFAULT_DETECTOR_POLE, atol=1e-9)
+    assert np.abs(eig.imag).max() < 1e-9
+    # L2 = E G_w: the detector's L2 term is the disturbance estimate pushed through E.
+    assert np.allclose(g["L2"], g["E"] @ g["G_w"], atol=1e-12)
+
+
+def test_detector_converges_under_constant_disturbance(designs):
+    """Linear simulation of Section 6: the estimate and w^ converge despite w."""
+    g = designs["paper"]
+    a, b, c, e = g["A"], g["B"], g["C"], g["E"]
+    rng = np.random.default_rng(1)
+    x = rng.normal(scale=[1, 1, 0.05, 0.05, 0.05, 1, 1, 0.1, 0.1, 0.1])
+    xh = np.zeros(10)
+    w = np.array([1.0, -0.5, 0.0, 0.3, 0.2])
+    u = np.zeros(5)
+    y = c @ x
+    for _ in range(40):
+        x_next = a @ x + b @ u + e @ w
+        y_next = c @ x_next
+        nu = y_next - c @ a @ xh - c @ b @ u
+        w_hat = g["G_w"] @ nu
+        xh = a @ xh + b @ u + g["L1"] @ (y - c @ xh) + g["L2"] @ nu
+        x, y = x_next, y_next
+        u = -g["K"] @ xh
+    assert np.abs(xh - x).max() < 1e-9
+    assert np.allclose(w_hat, w, atol=1e-9)
+
+
+def test_finite_horizon_converges_to_steady_state_gain(designs):
+    """Section 5.2's 800-step recursion reaches the DARE gain (paper README)."""
+    g = designs["paper"]
+    k_seq, ff, _ = design.finite_horizon_lqr(g["A"], g["B"], g["Q"], g["R"], g["Q"], horizon=800)
+    # The slowest closed-loop mode (|eig| 0.9937) leaves about 1e-4 after 800 steps.
+    assert np.allclose(k_seq[0], g["K"], rtol=2e-3, atol=1e-4 * np.abs(g["K"]).max())
+    assert not np.allclose(k_seq[-1], g["K"], rtol=0.1)  # the end of the horizon differs
+    assert np.all(ff == 0)
+
+
+def test_steady_state_feedforward_is_k_w(designs):
+    """With a constant known w, the recursion's feedforward far from the end is -K_w w."""
+    g = designs["physical"]
+    w = np.array([1.0, 1.0, 0.0, 0.0, 0.0])
+    horizon = 20000
+    k_seq, ff, _ = design.finite_horizon_lqr(g["A"], g["B"], g["Q"], g["R"], g["P"],
+                                             w_seq=np.tile(w, (horizon, 1)), e_mat=g["E"])
+    assert np.allclose(ff[0], -g["K_w"] @ w, rtol=1e-6, atol=1e-9)
+    assert np.abs(ff[0]).max() > 0.1  # the disturbance is not negligible
+
+
+def test_k_w_reduces_the_cost_of_a_constant_disturbance(designs):
+    g = designs["physical"]
+    a, b, q, r = g["A"], g["B"], g["Q"], g["R"]
+    w = np.array([1.0, 1.0, 0.0, 0.0, 0.0])
+
+    def cost(kw):
+        x = np.zeros(10)
+        total = 0.0
+        for _ in range(4000):
+            u = -g["K"] @ x - kw @ w
+            total += x @ q @ x + u @ r @ u
+            x = a @ x + b @ u + g["E"] @ w
+        return total
+
+    assert cost(g["K_w"]) < 0.9 * cost(np.zeros((5, 5)))
+
+
+def test_other_sampling_period(params):
+    g = design_gains("physical", params, ts_s=0.010)
+    doc = to_document(g)
+    assert doc["ts_s"] == 0.01
+    assert np.max(np.abs(g["closed_loop_eigenvalues"])) < 1
+    # At 10 ms no wheel weight makes the physical gain hold the paper's model; the file says so.
+    assert doc["robust_to_models"]["stabilized"] is False
+    assert doc["robust_to_models"]["worst_spectral_radius"] > 1
+
+
+def test_singular_r_is_refused(designs):
+    g = designs["paper"]
+    r = g["R"].copy()
+    r[3, 3] = 0.0
+    with pytest.raises(DesignError, match="R is singular"):
+        design.dlqr(g["A"], g["B"], g["Q"], r, (0, 1, 3, 4))
+
+
+def test_dead_input_column_is_refused(designs):
+    g = designs["paper"]
+    b = g["B"].copy()
+    b[:, 4] = 0.0
+    with pytest.raises(DesignError, match="input column 4 of B is zero"):
+        design.dlqr(g["A"], b, g["Q"], g["R"], (0, 1, 3, 4))
+
+
+def test_unsolvable_detector_condition_is_refused(designs):
+    g = designs["paper"]
+    e = g["E"].copy()
+    e[:, 3] = e[:, 4]  # two disturbances that act identically cannot be told apart
+    with pytest.raises(DesignError, match="not solvable"):
+        design.robust_detector(g["A"], g["B"], g["C"], e, (0, 1, 3, 4))
+
+
+def test_uncontrollable_system_is_refused(designs):
+    g = designs["paper"]
+    a = g["A"].copy()
+    b = g["B"].copy()
+    a[9, :] = 0.0
+    a[:, 9] = 0.0
+    a[9, 9] = 1.2
+    b[9, :] = 0.0  # th3' now unreachable and unstable
+    b[4, :] = 0.0
+    with pytest.raises(DesignError, match="not controllable"):
+        design.dlqr(a, b, g["Q"], g["R"], (0, 1, 3, 4))
+
+
+def test_committed_gains_files_are_regenerated_identically(designs):
+    for variant in VARIANTS:
+        path = os.path.join(DEFAULT_OUT_DIR, variant + ".json")
+        with open(path) as f:
+            committed = f.read()
+        fresh = dumps(to_document(designs[variant]))
+        if committed != fresh:
+            a, b = json.loads(committed), json.loads(fresh)
+            diff = [k for k in a if a[k] != b.get(k)]
+            pytest.fail("%s is stale (fields %s): run make gains" % (path, ", ".join(diff)))
+
+
+def test_gains_file_carries_its_provenance(designs):
+    doc = json.load(open(os.path.join(DEFAULT_OUT_DIR, "physical.json")))
+    for key in ("schema_version", "model_variant", "ts_s", "parameters", "parameters_sha256", "generator",
+                "state_units", "K_w", "G_w", "detector_eigenvalues", "u_max_v"):
+        assert key in doc
+    assert doc["model_variant"] == "physical" and doc["state_units"][0] == "m"
+    assert json.load(open(os.path.join(DEFAULT_OUT_DIR, "paper.json")))["state_units"][0] == "cm"
+
+
+def write_params(tmp_path, mutate):
+    doc = json.load(open(os.path.join(REPO_ROOT, "params", "robot.json")))
+    mutate(doc["parameters"])
+    path = tmp_path / "robot.json"
+    path.write_text(json.dumps(doc))
+    return str(path)
+
+
+@pytest.mark.parametrize("mutate, message", [
+    (lambda p: p.pop("m2_kg"), "missing parameter 'm2_kg'"),
+    (lambda p: p["l1_m"].update(value="ten"), "parameter 'l1_m' is not a number"),
+    (lambda p: p["m1_kg"].update(value=-0.663), "parameter 'm1_kg' must be positive"),
+    (lambda p: p["rw_m"].update(value=0), "parameter 'rw_m' must be positive"),
+    (lambda p: p.update(colour={"value": 1}), "unknown parameter 'colour'"),
+])
+def test_bad_parameter_files_are_named(tmp_path, mutate, message):
+    path = write_params(tmp_path, mutate)
+    with pytest.raises(Exception, match=message):
+        load_params(path)
+    # The command line ends with one line naming the cause, exit status 2.
+    proc = subprocess.run([sys.executable, "-m", "hostsim.gains", "--params", path, "--out-dir", str(tmp_path)],
+                          capture_output=True, text=True, cwd=REPO_ROOT)
+    assert proc.returncode == 2
+    assert proc.stderr.strip().count("\n") == 0 and message in proc.stderr
+
+
+def test_unreadable_parameter_file_is_named(tmp_path):
+    path = tmp_path / "nope.json"
+    assert gains_main(["--params", str(path), "--out-dir", str(tmp_path)]) == 2
+    bad = tmp_path / "bad.json"
+    bad.write_text("{not json")
+    with pytest.raises(Exception, match="bad.json: not valid JSON"):
+        load_params(str(bad))
