@@ -1,0 +1,124 @@
+"""The files that go onto the brick besides the package: ev3/tipbot, ev3/install.sh, ev3/tipbot.service."""
+import configparser
+import os
+import shutil
+import stat
+import subprocess
+import sys
+import textwrap
+
+REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+EV3 = os.path.join(REPO, "ev3")
+
+
+def read_bytes(name):
+    with open(os.path.join(EV3, name), "rb") as f:
+        return f.read()
+
+
+def test_brick_files_are_lf_and_executable():
+    for name in ("tipbot", "install.sh", "tipbot.service"):
+        raw = read_bytes(name)
+        assert b"\r" not in raw, name + ": CR in file (brickman/sh need LF line endings)"
+        raw.decode("ascii")
+    assert read_bytes("tipbot").startswith(b"#!/usr/bin/env python3\n")
+    assert read_bytes("install.sh").startswith(b"#!/bin/sh\n")
+    for name in ("tipbot", "install.sh"):
+        mode = os.stat(os.path.join(EV3, name)).st_mode
+        assert mode & stat.S_IXUSR, name + ": no owner execute bit (chmod u+x)"
+
+
+def make_install_dir(tmp_path, gains=True):
+    d = tmp_path / "tipbot"
+    (d / "tipbot_fw").mkdir(parents=True)
+    shutil.copy2(os.path.join(EV3, "tipbot"), str(d / "tipbot"))
+    shutil.copy2(os.path.join(EV3, "install.sh"), str(d / "install.sh"))
+    shutil.copy2(os.path.join(EV3, "tipbot.service"), str(d / "tipbot.service"))
+    # a stand-in firmware that reports how it was started
+    (d / "tipbot_fw" / "__init__.py").write_text("")
+    (d / "tipbot_fw" / "__main__.py").write_text(textwrap.dedent("""\
+        import os, sys
+        print("argv=" + repr(sys.argv[1:]))
+        print("cwd=" + os.getcwd())
+        print("main=" + os.path.dirname(os.path.abspath(__file__)))
+        sys.exit(3)
+        """))
+    if gains:
+        (d / "gains.json").write_text("{}")
+    return d
+
+
+def test_launcher_runs_the_firmware_with_the_deployed_files(tmp_path):
+    d = make_install_dir(tmp_path)
+    env = dict(os.environ)
+    env.pop("TIPBOT_GAINS", None)
+    env.pop("TIPBOT_CONFIG", None)
+    p = subprocess.run([sys.executable, str(d / "tipbot"), "--duration", "2"], cwd=str(tmp_path),
+                       env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, universal_newlines=True)
+    assert p.returncode == 3, p.stderr
+    assert "argv=['run', '--gains', '%s', '--duration', '2']" % (d / "gains.json") in p.stdout
+    assert "cwd=%s" % (d / "logs") in p.stdout
+    assert "main=%s" % (d / "tipbot_fw") in p.stdout
+
+    (d / "config.json").write_text("{}")
+    p = subprocess.run([sys.executable, str(d / "tipbot")], env=env, stdout=subprocess.PIPE,
+                       universal_newlines=True)
+    assert "'--config', '%s'" % (d / "config.json") in p.stdout
+
+
+def test_launcher_without_gains_says_what_to_do(tmp_path):
+    d = make_install_dir(tmp_path, gains=False)
+    p = subprocess.run([sys.executable, str(d / "tipbot")], stdout=subprocess.PIPE,
+                       stderr=subprocess.PIPE, universal_newlines=True)
+    assert p.returncode != 0
+    assert "no gains file" in p.stderr and "make deploy" in p.stderr
+
+
+def fake_python(tmp_path, numpy=None, ev3dev2=None):
+    """A python3 stand-in whose numpy/ev3dev2 are present (with a version) or missing."""
+    site = tmp_path / "fake_site"
+    site.mkdir()
+    for mod, ver in (("numpy", numpy), ("ev3dev2", ev3dev2)):
+        if ver:
+            (site / (mod + ".py")).write_text("__version__ = %r\n" % ver)
+        else:
+            (site / (mod + ".py")).write_text("raise ImportError('no %s')\n" % mod)
+    script = tmp_path / "python3"
+    # -S: no site-packages, so only the stand-in modules above are importable
+    script.write_text("#!/bin/sh\nPYTHONPATH=%s exec %s -S \"$@\"\n" % (site, sys.executable))
+    script.chmod(0o755)
+    return str(script)
+
+
+def run_install(d, python):
+    env = dict(os.environ, PYTHON=python)
+    return subprocess.run(["sh", str(d / "install.sh")], env=env, stdout=subprocess.PIPE,
+                          stderr=subprocess.STDOUT, universal_newlines=True)
+
+
+def test_install_sh_prints_what_to_install(tmp_path):
+    d = make_install_dir(tmp_path)
+    p = run_install(d, fake_python(tmp_path, numpy=None, ev3dev2=None))
+    assert p.returncode == 1, p.stdout
+    assert "sudo apt-get update && sudo apt-get install python3-numpy python3-ev3dev2" in p.stdout
+
+
+def test_install_sh_refuses_old_numpy_and_accepts_the_brick(tmp_path):
+    d = make_install_dir(tmp_path)
+    p = run_install(d, fake_python(tmp_path, numpy="1.11.0", ev3dev2="2.1.0"))
+    assert p.returncode == 1 and "sudo apt-get install python3-numpy\n" in p.stdout, p.stdout
+    shutil.rmtree(str(tmp_path / "fake_site"))
+    p = run_install(d, fake_python(tmp_path, numpy="1.12.1", ev3dev2="2.1.0"))
+    assert p.returncode == 0, p.stdout
+    assert "numpy 1.12.1: ok" in p.stdout and "python-ev3dev2 2.1.0: ok" in p.stdout
+    assert "ready" in p.stdout
+
+
+def test_service_unit_runs_the_launcher():
+    cp = configparser.ConfigParser(interpolation=None, strict=True)
+    cp.optionxform = str
+    cp.read(os.path.join(EV3, "tipbot.service"))
+    svc = cp["Service"]
+    assert svc["ExecStart"] == svc["WorkingDirectory"] + "/tipbot"
+    assert svc["KillSignal"] == "SIGINT"  # the firmware stops the motors on KeyboardInterrupt
+    assert cp["Install"]["WantedBy"] == "multi-user.target"

@@ -1,0 +1,81 @@
+"""tools/tick-cost: instructions per tick = (count(N ticks) - count(0 ticks)) / N."""
+import os
+import subprocess
+import sys
+
+import pytest
+
+REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+TICK_COST = os.path.join(REPO, "tools", "tick-cost")
+INSNS = os.path.join(REPO, "tools", "insns")
+
+FAKE_INSNS = '''\
+import sys
+args = sys.argv[1:]
+if "--fail" in args:
+    print("boom", file=sys.stderr)
+    sys.exit(1)
+n = int(args[args.index("--ticks") + 1])
+print("insns: %d" % (40000000 + 1234 * n), file=sys.stderr)
+'''
+
+TRIVIAL_BENCH = '''\
+import sys
+n = int(sys.argv[sys.argv.index("--ticks") + 1])
+x = 0.0
+for i in range(n):
+    x = x * 0.5 + i
+'''
+
+
+def run(args, insns):
+    return subprocess.run([sys.executable, TICK_COST, "--insns", insns] + args,
+                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, universal_newlines=True)
+
+
+@pytest.fixture
+def fake_insns(tmp_path):
+    script = tmp_path / "fake_insns"
+    script.write_text("#!%s\n%s" % (sys.executable, FAKE_INSNS))
+    script.chmod(0o755)
+    return str(script)
+
+
+def test_per_tick_arithmetic(fake_insns):
+    p = run(["--ticks", "500", "--", "python3", "-m", "tipbot_fw.bench"], fake_insns)
+    assert p.returncode == 0, p.stderr
+    assert "python3 -m tipbot_fw.bench --ticks 500: 40617000 insns" in p.stdout
+    assert "python3 -m tipbot_fw.bench --ticks 0: 40000000 insns" in p.stdout
+    assert "tick-cost: 1234 instructions per tick (N=500;" in p.stdout
+
+
+def test_failing_command_fails(fake_insns):
+    p = run(["--", "python3", "x.py", "--fail"], fake_insns)
+    assert p.returncode == 1
+    assert "exited with status 1" in p.stderr and "boom" in p.stderr
+
+
+def test_no_brick_says_how_to_make_one(tmp_path):
+    env = dict(os.environ, ARMV5_ROOT=str(tmp_path / "none"), ARMV5_BUILD=str(tmp_path / "none"))
+    p = subprocess.run([sys.executable, TICK_COST, "--", "python3", "-c", "pass"], env=env,
+                       stdout=subprocess.PIPE, stderr=subprocess.PIPE, universal_newlines=True)
+    assert p.returncode == 2
+    assert "make brick" in p.stderr
+
+
+def have_brick():
+    root = os.environ.get("ARMV5_ROOT", "/var/tmp/armv5-root")
+    build = os.environ.get("ARMV5_BUILD", "/var/tmp/armv5-build")
+    return os.path.isfile(os.path.join(build, "libinsncount.so")) and \
+        os.access(os.path.join(root, "usr", "bin", "python3"), os.X_OK)
+
+
+@pytest.mark.skipif(not have_brick(), reason="no virtual brick (make brick)")
+def test_on_the_virtual_brick(tmp_path):
+    bench = tmp_path / "trivial_bench.py"
+    bench.write_text(TRIVIAL_BENCH)
+    p = run(["--ticks", "2000", "--", "python3", str(bench)], INSNS)
+    assert p.returncode == 0, p.stderr
+    per_tick = float(p.stdout.split("tick-cost: ")[-1].split()[0])
+    # one float multiply-add in CPython 3.11 on ARMv5 soft-float: hundreds to a few thousand insns
+    assert 200 < per_tick < 20000, p.stdout
