@@ -1,0 +1,125 @@
+"""python3 -m tipbot_fw: refusals before touching devices, exit codes, a run on the fake EV3."""
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import fw_support as S
+from hostsim.fake_ev3 import FakeEV3
+from tipbot_fw import cli
+from tipbot_fw.logfile import col, read_log
+
+REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+PHYSICAL = os.path.join(REPO, 'gains', 'physical.json')
+
+
+@pytest.fixture
+def no_devices(monkeypatch):
+    """Fails the test if the CLI tries to open devices."""
+    def forbidden(config, root):
+        raise AssertionError('devices opened')
+    monkeypatch.setattr(cli, '_open_devices', forbidden)
+
+
+def test_invalid_gains_are_refused_before_any_device(tmp_path, capsys, no_devices):
+    doc = S.gains_doc()
+    doc['K'] = doc['K'][:4]
+    path = S.write_json(tmp_path / 'bad.json', doc)
+    assert cli.main(['run', '--gains', path]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == 'tipbot: refused to start: {}: field K has shape 4x10, expected 5x10'.format(path)
+
+
+def test_invalid_config_is_refused_before_any_device(tmp_path, capsys, no_devices):
+    cfg = S.write_json(tmp_path / 'cfg.json', {'limits': {'th1_rad': -1}})
+    assert cli.main(['run', '--gains', PHYSICAL, '--config', cfg]) == 2
+    err = capsys.readouterr().err
+    assert 'refused to start: {}: field limits.th1_rad: must be a number in (0, 1.5], got -1'.format(cfg) in err
+    assert len(err.strip().splitlines()) == 1
+
+
+def test_bad_command_line(capsys, no_devices):
+    with pytest.raises(SystemExit) as e:
+        cli.main(['run', '--gains', PHYSICAL, '--duration', '-3'])
+    assert e.value.code == 2
+
+
+def test_missing_devices(tmp_path, capsys):
+    empty = tmp_path / 'sys'
+    empty.mkdir()
+    assert cli.main(['check', '--sysfs-root', str(empty)]) == 3
+    assert 'tipbot: devices: ' in capsys.readouterr().err
+
+
+@pytest.fixture
+def fake(tmp_path):
+    f = FakeEV3(str(tmp_path / 'sys'), battery_v=8.2)
+    # nothing polls the fake during these runs, so the gyro stays in its first mode (its
+    # bin_data then reads as angle 0, rate 0); the encoders are read as they are set
+    f.set_readings((100, -20, 30, 40))
+    yield f
+    f.close()
+
+
+@pytest.fixture
+def quick_config(tmp_path):
+    return S.write_json(tmp_path / 'quick.json',
+                        {'realtime_priority': 0, 'gyro_calibration': {'duration_s': 0.05}})
+
+
+def test_run_on_the_fake_ev3(fake, tmp_path, quick_config, capsys):
+    log = str(tmp_path / 'run.log')
+    code = cli.main(['run', '--gains', PHYSICAL, '--config', quick_config, '--duration', '0.1',
+                     '--log', log, '--sysfs-root', fake.sysfs_root])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    header, rows = read_log(log)
+    assert header['stop_reason'] == 'completed' and len(rows) == 20
+    assert header['encoder_offsets'] == [100, -20, 30, 40]
+    assert header['counts_per_rot'] == [360, 360, 360, 360]
+    assert np.all(rows[:, col('battery_v')] == pytest.approx(8.2))
+    states = fake.poll()
+    for port in ('outA', 'outB', 'outC', 'outD'):
+        assert fake.motor_duty(port) == 0 and not fake.motor_running(port), states[port]
+
+
+def test_check_and_calibrate_on_the_fake_ev3(fake, quick_config, capsys):
+    assert cli.main(['check', '--config', quick_config, '--sysfs-root', fake.sysfs_root]) == 0
+    out = capsys.readouterr().out
+    assert 'encoders [100, -20, 30, 40] counts' in out
+    assert 'battery 8.20 V' in out and 'gyro bias 0.000 deg/s' in out
+    fake.set_battery_v(6.0)
+    assert cli.main(['check', '--config', quick_config, '--sysfs-root', fake.sysfs_root]) == 4
+    assert cli.main(['calibrate', '--config', quick_config, '--sysfs-root', fake.sysfs_root]) == 0
+    assert 'gyro bias 0.000 deg/s' in capsys.readouterr().out
+
+
+def test_bench_imports_only_the_firmware_and_numpy():
+    code = ("import sys; from tipbot_fw import bench; rc = bench.main(['--ticks', '300']); "
+            "bad = [m for m in ('ev3dev2', 'scipy', 'hostsim', 'tipbot_fw.ev3io') if m in sys.modules]; "
+            "print(rc, bad)")
+    out = subprocess.run([sys.executable, '-c', code], cwd=REPO, stdout=subprocess.PIPE,
+                         universal_newlines=True, check=True).stdout
+    assert out.splitlines()[-1] == '0 []'
+    assert 'ticks 300 (+1 start tick)' in out
+
+
+def test_module_entry_point_runs():
+    p = subprocess.run([sys.executable, '-m', 'tipbot_fw', '--help'], cwd=REPO,
+                       stdout=subprocess.PIPE, universal_newlines=True)
+    assert p.returncode == 0 and '143 terminated (SIGTERM)' in p.stdout
+
+
+def test_on_robot_bench_runs_against_any_devices():
+    from tipbot_fw.bench import brick_bench
+    from tipbot_fw.devices import MemoryDevices
+    dev = MemoryDevices()
+    lines = []
+    brick_bench(dev, S.load(), S.fw_config(), 40, say=lines.append)
+    assert [line.split(':')[0].strip() for line in lines] == [
+        'read_raw (5 reads)', 'write_duties (4 writes)', 'Core.step (compute)',
+        'loop tick (read..write)', 'overruns']
+    assert dev.duties == [0, 0, 0, 0] and dev.stop_calls >= 2
+    assert dev.duty_writes >= 40 * 4      # the pattern, not the controller, was written

@@ -1,0 +1,88 @@
+"""tipbot_fw.config: defaults, --config overrides, and error messages naming file and field."""
+import json
+import re
+
+import pytest
+
+from tipbot_fw.config import ConfigError, DEFAULT_PATH, config_from_overrides, load_config
+
+
+def write(tmp_path, text, name='robot.json'):
+    p = tmp_path / name
+    p.write_text(text if isinstance(text, str) else json.dumps(text))
+    return str(p)
+
+
+def test_defaults_are_the_documented_robot():
+    c = load_config()
+    assert c['ports'] == {'right_wheel': 'outA', 'left_wheel': 'outB', 'joint2': 'outC',
+                          'joint3': 'outD', 'gyro': 'in2'}
+    assert c['drivers']['joint3'] == 'lego-ev3-m-motor'
+    assert c['drivers']['gyro'] == 'lego-ev3-gyro'
+    assert c['wheel_radius_m'] == 0.034
+    assert c['limits']['th1_rad'] == 0.6 and c['limits']['min_battery_v'] == 6.5
+
+
+def test_override_replaces_only_the_given_fields(tmp_path):
+    path = write(tmp_path, {'polarity': {'joint3': -1}, 'limits': {'th1_rad': 0.4}, 'gyro_sign': -1})
+    c = load_config(path)
+    assert c['polarity'] == {'right_wheel': 1, 'left_wheel': 1, 'joint2': 1, 'joint3': -1}
+    assert c['limits']['th1_rad'] == 0.4
+    assert c['limits']['min_battery_v'] == load_config()['limits']['min_battery_v']
+    assert c['gyro_sign'] == -1
+    # the defaults themselves are untouched by a merge
+    assert load_config()['polarity']['joint3'] == 1
+
+
+def test_null_bias_time_constant_disables_tracking(tmp_path):
+    assert load_config(write(tmp_path, {'gyro_bias_time_constant_s': None}))['gyro_bias_time_constant_s'] is None
+
+
+@pytest.mark.parametrize('override, message', [
+    ({'limits': {'th1_limit': 1.0}}, 'field limits.th1_limit: unknown field'),
+    ({'colour': 'red'}, 'field colour: unknown field'),
+    ({'limits': 0.6}, 'field limits: must be an object, got 0.6'),
+    ({'polarity': {'right_wheel': 2}}, 'field polarity.right_wheel: must be one of 1, -1, got 2'),
+    ({'polarity': {'right_wheel': True}}, 'field polarity.right_wheel: must be one of 1, -1, got True'),
+    ({'wheel_radius_m': 0}, r'field wheel_radius_m: must be a number in \(0, 0.2\], got 0'),
+    ({'wheel_radius_m': '0.034'}, "field wheel_radius_m: must be a number in .*got '0.034'"),
+    ({'limits': {'max_consecutive_overruns': 2.5}}, 'field limits.max_consecutive_overruns: must be an integer'),
+    ({'ports': {'gyro': 'outA'}}, "field ports.gyro: must be one of 'in1', 'in2', 'in3', 'in4', got 'outA'"),
+    ({'ports': {'joint2': 'outA'}}, 'field ports.(right_wheel|joint2): port outA is used by two motors'),
+    ({'drivers': {'gyro': ''}}, 'field drivers.gyro: must be a non-empty string'),
+    ({'stop_action': 'hold'}, "field stop_action: must be one of 'coast', 'brake', got 'hold'"),
+    ({'realtime_priority': 100}, 'field realtime_priority: must be an integer in'),
+])
+def test_invalid_fields_are_named_with_the_file(tmp_path, override, message):
+    path = write(tmp_path, override)
+    with pytest.raises(ConfigError, match=re.escape(path) + ': ' + message):
+        load_config(path)
+
+
+def test_non_finite_number_is_refused(tmp_path):
+    path = write(tmp_path, '{"filters": {"gyro_rate_cutoff_hz": NaN}}')
+    with pytest.raises(ConfigError, match=r'field filters.gyro_rate_cutoff_hz: must be a number .*got nan'):
+        load_config(path)
+
+
+def test_malformed_json_names_the_file(tmp_path):
+    path = write(tmp_path, '{"limits": {"th1_rad": 0.5,}}')
+    with pytest.raises(ConfigError, match=re.escape(path) + ': not valid JSON'):
+        load_config(path)
+
+
+def test_top_level_must_be_an_object(tmp_path):
+    path = write(tmp_path, '[1, 2]')
+    with pytest.raises(ConfigError, match=re.escape(path) + ': must be a JSON object'):
+        load_config(path)
+
+
+def test_missing_file(tmp_path):
+    path = str(tmp_path / 'nope.json')
+    with pytest.raises(ConfigError, match=re.escape(path) + ': cannot read'):
+        load_config(path)
+
+
+def test_default_file_is_complete_and_valid():
+    with open(DEFAULT_PATH) as f:
+        assert config_from_overrides({}) == json.load(f)

@@ -1,0 +1,128 @@
+"""tipbot_fw.loop: timing without drift, overrun policy, I/O per tick, gc; lock-step balancing."""
+import gc
+
+import numpy as np
+import pytest
+
+import fw_support as S
+from tipbot_fw import logfile
+from tipbot_fw.clock import VirtualClock
+from tipbot_fw.core import Core
+from tipbot_fw.devices import MemoryDevices
+from tipbot_fw.loop import ControlLoop
+from tipbot_fw.safety import OverrunLimit
+from tipbot_fw.session import run_session
+
+TS = S.TS
+
+
+def make_loop(clock, dev=None, duration_s=1.0, capacity=1000, **kw):
+    dev = dev or MemoryDevices()
+    core = Core(S.load(), S.fw_config(), 0.0)
+    log = logfile.LogBuffer(capacity)
+    loop = ControlLoop(dev, core, clock, log, TS, 8.0, duration_s=duration_s, **kw)
+    return loop, dev, log
+
+
+def test_deadlines_advance_by_exactly_one_period():
+    rng = np.random.RandomState(5)
+    targets = []
+
+    def on_sleep(t_from, t_to):
+        targets.append(t_to)
+        clock.advance(rng.uniform(0, 0.8 * TS))     # the next tick's work takes some time
+
+    clock = VirtualClock(start=100.0, on_sleep=on_sleep)
+    loop, _, _ = make_loop(clock, duration_s=5.0)
+    clock.advance(0.0012)                           # the first tick starts after some set-up
+    stats = loop.run()
+    assert stats.ticks == 1000 and stats.overruns == 0
+    k = np.arange(1, len(targets) + 1)
+    np.testing.assert_allclose(np.array(targets) - 100.0012, k * TS, rtol=0, atol=1e-9)
+
+
+def test_each_tick_reads_once_writes_once_and_reads_the_battery_after_writing():
+    per_tick = []
+    dev = MemoryDevices()
+    dev.trace = []
+
+    def on_sleep(t_from, t_to):
+        per_tick.append((list(dev.trace), dev.duty_writes))
+        dev.trace[:] = []
+        dev.duty_writes = 0
+        dev.enc = tuple(np.random.RandomState(len(per_tick)).randint(-40, 40, 4).tolist())
+
+    loop, dev, _ = make_loop(VirtualClock(on_sleep=on_sleep), dev=dev, duration_s=2.0,
+                             battery_period_s=0.1)
+    loop.run()
+    assert len(per_tick) == 399
+    battery_ticks = 0
+    for ops, writes in per_tick:
+        assert ops[:2] == ['read_raw', 'write_duties']      # 5 sysfs reads, then <= 4 writes
+        assert ops[2:] in ([], ['read_battery_v'])            # housekeeping after the writes
+        battery_ticks += len(ops) - 2
+        assert writes <= 4
+    assert battery_ticks == 19                                 # every 0.1 s
+    assert sum(w for _, w in per_tick) > 100                   # duties did change
+
+
+def test_consecutive_overruns_stop_the_loop_and_are_flagged():
+    def on_sleep(t_from, t_to):
+        if clock.sleeps > 20:
+            clock.advance(1.5 * TS)        # every tick from here on ends after the next release
+
+    clock = VirtualClock(on_sleep=on_sleep)
+    loop, dev, log = make_loop(clock, max_consecutive_overruns=5)
+    with pytest.raises(OverrunLimit, match='5 consecutive overruns'):
+        loop.run()
+    flags = log.mem[:log.count, logfile.MEM_FLAGS].astype(int)
+    assert (flags & 16).sum() // 16 == 5 and list(flags[-5:] & 16) == [16] * 5
+    assert loop.stats.overruns == 5
+
+
+def test_isolated_overruns_skip_missed_periods_but_keep_the_grid():
+    targets = []
+
+    def on_sleep(t_from, t_to):
+        targets.append(t_to)
+        if clock.sleeps % 10 == 0:
+            clock.advance(3.5 * TS)        # oversleeps by 2.5 periods: one release passes entirely
+
+    clock = VirtualClock(on_sleep=on_sleep)
+    loop, dev, log = make_loop(clock, duration_s=1.0)
+    stats = loop.run()
+    assert stats.ticks == 200
+    assert stats.overruns == 19 and stats.max_consecutive_overruns == 1
+    assert stats.skipped_periods == 19
+    # every release stays on the grid t0 + k * period
+    k = np.round(np.array(targets) / TS)
+    np.testing.assert_allclose(np.array(targets), k * TS, atol=1e-9)
+
+
+def test_gc_is_off_inside_the_loop_and_restored():
+    seen = []
+    loop, _, _ = make_loop(VirtualClock(on_sleep=lambda a, b: seen.append(gc.isenabled())), duration_s=0.1)
+    assert gc.isenabled()
+    loop.run()
+    assert seen and not any(seen)
+    assert gc.isenabled()
+
+
+def test_no_realtime_request_at_priority_0():
+    loop, _, _ = make_loop(VirtualClock(), duration_s=0.05, realtime_priority=0)
+    assert loop.run().realtime == {'requested_priority': 0, 'granted': False, 'error': 'not requested'}
+
+
+def test_balances_the_simulated_robot_in_lock_step():
+    # held at 0.05 rad during calibration (start pose), with a 3 deg/s gyro bias, then released
+    sim = S.Lockstep(x0=[0, 0, 0.05, 0, 0, 0, 0, 0, 0, 0], gyro_bias_dps=3)
+    states = []
+    sim.on_step = lambda s: states.append(s.x.copy())
+    code, header = run_session(sim.dev, S.load(), S.fw_config(start_pose_rad={'th1': 0.05}),
+                               sim.clock, duration_s=3.0, say=lambda m: None)
+    states = np.array(states)
+    assert code == 0 and header['calibration']['gyro_bias_dps'] == 3.0
+    assert len(states) == 599
+    assert np.abs(states[:, 2]).max() < 0.06
+    assert np.abs(states[-200:, 2]).max() < 0.02     # upright in the last second
+    assert np.abs(states[-1, :2]).max() < 0.02        # and near where it started

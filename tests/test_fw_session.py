@@ -1,0 +1,211 @@
+"""tipbot_fw.session + safety: every way a run ends leaves the motors stopped and the log written."""
+import os
+import signal
+
+import numpy as np
+
+import fw_support as S
+from tipbot_fw import logfile
+from tipbot_fw.clock import VirtualClock
+from tipbot_fw.devices import MemoryDevices
+from tipbot_fw.logfile import col, read_log
+from tipbot_fw.session import run_session
+
+
+def session(tmp_path, dev, clock=None, duration_s=1.0, config=None):
+    log_path = str(tmp_path / 'run.log')
+    messages = []
+    code, header = run_session(dev, S.load(), config or S.fw_config(), clock or VirtualClock(),
+                               log_path=log_path, duration_s=duration_s, say=messages.append)
+    return code, header, log_path, messages
+
+
+def assert_stopped_and_logged(dev, log_path, reason, code, header):
+    assert dev.stop_calls >= 1 and dev.duties == [0, 0, 0, 0]
+    h, rows = read_log(log_path)
+    assert h['stop_reason'] == reason and h['exit_code'] == code == header['exit_code']
+    assert rows.shape == (h['ticks'] - h['first_tick'], logfile.N_COLUMNS)
+    return h, rows
+
+
+class TickCounter(object):
+    """on_sleep hook: counts loop ticks (sleeps after the first write) and runs `action(n)`."""
+
+    def __init__(self, dev, action):
+        self.dev, self.action, self.n = dev, action, 0
+
+    def __call__(self, t_from, t_to):
+        if self.dev.write_calls:
+            self.n += 1
+            self.action(self.n)
+
+
+def test_completed_run(tmp_path):
+    dev = MemoryDevices()
+    code, header, path, msgs = session(tmp_path, dev, duration_s=0.5)
+    h, rows = assert_stopped_and_logged(dev, path, 'completed', 0, header)
+    assert h['ticks'] == 100 and msgs[-1] == 'stopped: completed (exit 0, 100 ticks)'
+    assert dev.closed is False          # closing the devices is the caller's (cli's) job
+
+
+def test_fall_stops_the_motors_in_the_same_tick(tmp_path):
+    dev = MemoryDevices()
+    dev.trace = []
+    # link 1 tips over at 100 deg/s once the loop runs: beyond 0.6 rad after ~0.35 s
+    clock = VirtualClock(on_sleep=TickCounter(dev, lambda n: setattr(dev, 'gyro', (0, 100))))
+    code, header, path, msgs = session(tmp_path, dev, clock)
+    h, rows = assert_stopped_and_logged(dev, path, 'fall', 6, header)
+    th1 = rows[:, col('y_th1')]
+    assert th1[-1] > 0.6 and np.all(th1[:-1] <= 0.6)       # stopped at the first tick beyond
+    assert int(rows[-1, col('flags')]) & 32
+    last_tick = dev.trace[len(dev.trace) - 1 - dev.trace[::-1].index('read_raw'):]
+    assert last_tick == ['read_raw', 'stop_all']             # no duty written in that tick
+    assert 'fall: th1 = 0.60' in h['stop_message'] or 'fall: th1 = 0.61' in h['stop_message']
+
+
+def test_joint_limit_stops_too(tmp_path):
+    dev = MemoryDevices()
+    clock = VirtualClock(on_sleep=TickCounter(dev, lambda n: setattr(dev, 'enc', (0, 0, 0, 5 * n))))
+    code, header, path, _ = session(tmp_path, dev, clock)
+    h, rows = assert_stopped_and_logged(dev, path, 'joint_limit', 6, header)
+    assert abs(rows[-1, col('y_th3')]) > 1.2 and int(rows[-1, col('flags')]) & 64
+
+
+def test_exception_in_the_tick(tmp_path):
+    dev = MemoryDevices()
+    clock = VirtualClock(on_sleep=TickCounter(dev, lambda n: n == 30 and setattr(dev, 'enc', (None, 0, 0, 0))))
+    code, header, path, msgs = session(tmp_path, dev, clock)
+    h, rows = assert_stopped_and_logged(dev, path, 'exception', 1, header)
+    assert h['stop_message'].startswith('TypeError') and h['ticks'] == 30
+
+
+def test_sensor_read_failure(tmp_path):
+    dev = MemoryDevices()
+
+    def fail(n):
+        if n == 40:
+            def broken():
+                raise OSError(19, 'No such device')
+            dev.source = broken
+
+    code, header, path, msgs = session(tmp_path, dev, VirtualClock(on_sleep=TickCounter(dev, fail)))
+    h, rows = assert_stopped_and_logged(dev, path, 'device_failure', 5, header)
+    assert 'read_raw failed at tick 40' in h['stop_message'] and len(rows) == 40
+
+
+def test_write_failure(tmp_path):
+    class FailingWrites(MemoryDevices):
+        def write_duties(self, duties):
+            if self.write_calls == 10:
+                raise OSError(5, 'Input/output error')
+            MemoryDevices.write_duties(self, duties)
+
+    dev = FailingWrites()
+    code, header, path, _ = session(tmp_path, dev)
+    h, _ = assert_stopped_and_logged(dev, path, 'device_failure', 5, header)
+    assert 'write_duties failed at tick 10' in h['stop_message']
+
+
+def test_sigterm(tmp_path):
+    dev = MemoryDevices()
+    before = signal.getsignal(signal.SIGTERM)
+    clock = VirtualClock(on_sleep=TickCounter(dev, lambda n: n == 50 and os.kill(os.getpid(), signal.SIGTERM)))
+    code, header, path, _ = session(tmp_path, dev, clock)
+    h, rows = assert_stopped_and_logged(dev, path, 'sigterm', 143, header)
+    assert 50 <= h['ticks'] <= 51
+    assert signal.getsignal(signal.SIGTERM) == before
+
+
+def test_keyboard_interrupt(tmp_path):
+    dev = MemoryDevices()
+
+    def interrupt(n):
+        if n == 20:
+            raise KeyboardInterrupt
+
+    code, header, path, _ = session(tmp_path, dev, VirtualClock(on_sleep=TickCounter(dev, interrupt)))
+    assert_stopped_and_logged(dev, path, 'keyboard_interrupt', 130, header)
+
+
+def test_a_second_signal_cannot_interrupt_the_shutdown(tmp_path):
+    class SignalledStop(MemoryDevices):
+        def stop_all(self):
+            os.kill(os.getpid(), signal.SIGINT)     # Ctrl-C again while stopping
+            MemoryDevices.stop_all(self)
+
+    dev = SignalledStop()
+    clock = VirtualClock(on_sleep=TickCounter(dev, lambda n: n == 5 and os.kill(os.getpid(), signal.SIGTERM)))
+    code, header, path, _ = session(tmp_path, dev, clock)
+    assert_stopped_and_logged(dev, path, 'sigterm', 143, header)
+
+
+def test_overruns(tmp_path):
+    dev = MemoryDevices()
+    clock = VirtualClock()
+    clock.on_sleep = TickCounter(dev, lambda n: n >= 10 and clock.advance(0.02))
+    code, header, path, _ = session(tmp_path, dev, clock)
+    h, rows = assert_stopped_and_logged(dev, path, 'overruns', 7, header)
+    assert h['loop']['max_consecutive_overruns'] == 5
+    assert [int(f) & 16 for f in rows[-5:, col('flags')]] == [16] * 5
+
+
+def test_low_battery_refuses_to_start(tmp_path):
+    dev = MemoryDevices(battery_v=6.2)
+    code, header, path, msgs = session(tmp_path, dev)
+    h, rows = assert_stopped_and_logged(dev, path, 'low_battery', 4, header)
+    assert dev.raw_reads == 0 and dev.write_calls == 0 and len(rows) == 0
+    assert '6.20 V is below limits.min_battery_v = 6.5 V' in h['stop_message']
+
+
+def test_gyro_moving_during_calibration_refuses_to_start(tmp_path):
+    dev = MemoryDevices()
+    rates = iter([0, 1, 0, 9] + [0] * 1000)
+    dev.source = lambda: ((0, 0, 0, 0), (0, next(rates)))
+    code, header, path, _ = session(tmp_path, dev)
+    h, _ = assert_stopped_and_logged(dev, path, 'calibration', 4, header)
+    assert dev.write_calls == 0
+    assert 'gyro rate varied by 9 deg/s' in h['stop_message']
+
+
+def test_gyro_turning_steadily_during_calibration_refuses_to_start(tmp_path):
+    dev = MemoryDevices()
+    angle = iter(range(1000))
+    dev.source = lambda: ((0, 0, 0, 0), (next(angle) // 4, 50))
+    code, header, path, _ = session(tmp_path, dev)
+    h, _ = assert_stopped_and_logged(dev, path, 'calibration', 4, header)
+    assert 'gyro angle changed by' in h['stop_message']
+
+
+def test_header_has_what_a_replay_needs(tmp_path):
+    dev = MemoryDevices(counts_per_rot=(360, 360, 360, 720))
+    dev.enc = (123, -45, 6, 7)
+    dev.gyro = (4, 2)
+    code, header, path, _ = session(tmp_path, dev, duration_s=0.2)
+    h, rows = read_log(path)
+    assert h['encoder_offsets'] == [123, -45, 6, 7] and h['counts_per_rot'] == [360, 360, 360, 720]
+    assert h['calibration']['gyro_bias_dps'] == 2.0
+    assert h['x_tilde_0'] == rows[0, col('xt_d_r'):col('xt_d_r') + 10].tolist()
+    assert h['gains']['sha256'] == 'test-sha' and h['ts_s'] == 0.005
+    assert h['config']['limits']['th1_rad'] == 0.6 and 'numpy' in h['versions']
+    assert [c['name'] for c in h['columns']][:3] == ['time_s', 'tick_s', 'enc_r']
+
+
+def test_polarity_changes_only_the_sign_of_what_the_motor_sees(tmp_path):
+    # the same physical motion seen through a reversed right-wheel motor: its counts and its
+    # duties change sign, the estimate and the applied input u (in the robot's frame) do not
+    rows = {}
+    for polarity in (1, -1):
+        dev = MemoryDevices()
+        ticks = TickCounter(dev, lambda n: setattr(dev, 'enc', (polarity * 3 * n, 0, n, 0)))
+        config = S.fw_config(polarity={'right_wheel': polarity})
+        (tmp_path / str(polarity)).mkdir()
+        session(tmp_path / str(polarity), dev, VirtualClock(on_sleep=ticks), duration_s=0.3,
+                config=config)
+        rows[polarity] = read_log(str(tmp_path / str(polarity) / 'run.log'))[1]
+    a, b = rows[1], rows[-1]
+    for c in logfile.COLUMN_NAMES:
+        if c not in ('time_s', 'tick_s', 'enc_r', 'duty_r'):
+            np.testing.assert_array_equal(a[:, col(c)], b[:, col(c)], err_msg=c)
+    np.testing.assert_array_equal(a[:, col('enc_r')], -b[:, col('enc_r')])
+    np.testing.assert_array_equal(a[:, col('duty_r')], -b[:, col('duty_r')])
+    assert np.abs(a[:, col('duty_r')]).max() > 0

@@ -1,0 +1,140 @@
+"""Command line: python3 -m tipbot_fw {run,check,calibrate,bench} ... (exit codes: tipbot_fw.safety)."""
+import argparse
+import sys
+import time
+
+from tipbot_fw import safety
+from tipbot_fw.bench import brick_bench
+from tipbot_fw.calibration import calibrate_gyro
+from tipbot_fw.clock import MonotonicClock
+from tipbot_fw.config import ConfigError, load_config
+from tipbot_fw.gains import GainsError, load_gains
+from tipbot_fw.session import run_session
+
+CHECK_PERIOD_S = 0.005   # gyro sampling period for check/calibrate (no gains file involved)
+
+
+def _say(msg):
+    sys.stderr.write('tipbot: {}\n'.format(msg))
+    sys.stderr.flush()
+
+
+def _positive_float(text):
+    try:
+        v = float(text)
+    except ValueError:
+        v = float('nan')
+    if not v > 0.0 or v == float('inf'):
+        raise argparse.ArgumentTypeError('must be a positive number of seconds, got {!r}'.format(text))
+    return v
+
+
+def _parser():
+    p = argparse.ArgumentParser(prog='python3 -m tipbot_fw', description='tipbot firmware',
+                                epilog=safety.__doc__.split('\n', 1)[1],
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = p.add_subparsers(dest='command')
+
+    def common(sp):
+        sp.add_argument('--config', metavar='FILE', help='JSON overriding fields of default_config.json')
+        sp.add_argument('--sysfs-root', metavar='DIR', default='/sys/class',
+                        help='root of the ev3dev sysfs tree (default /sys/class)')
+
+    sp = sub.add_parser('run', help='balance')
+    sp.add_argument('--gains', metavar='FILE', required=True)
+    sp.add_argument('--duration', metavar='S', type=_positive_float, help='stop after S seconds')
+    sp.add_argument('--log', metavar='FILE',
+                    help='run log (default tipbot-YYYYmmdd-HHMMSS.log in the current directory)')
+    common(sp)
+    sp = sub.add_parser('check', help='devices, drivers, battery, gyro stillness; never drives motors')
+    common(sp)
+    sp = sub.add_parser('calibrate', help='measure and print the gyro bias')
+    common(sp)
+    sp = sub.add_parser('bench', help='timings on the robot: reads, writes, compute, loop ticks')
+    sp.add_argument('--gains', metavar='FILE', required=True)
+    sp.add_argument('--ticks', metavar='N', type=int, default=2000)
+    common(sp)
+    return p
+
+
+def _open_devices(config, sysfs_root):
+    """-> Ev3Devices, or None after saying why (missing device, wrong driver, no ev3dev2)."""
+    try:
+        from tipbot_fw.ev3io import Ev3Devices   # late: needs python-ev3dev2, only on the robot
+        return Ev3Devices(config, sysfs_root=sysfs_root)
+    except Exception as e:
+        _say('devices: {}: {}'.format(type(e).__name__, e))
+        return None
+
+
+def main(argv=None):
+    args = _parser().parse_args(argv)
+    if args.command is None:
+        _parser().print_help()
+        return safety.EXIT_INVALID
+    try:
+        config = load_config(args.config)
+        gains = load_gains(args.gains) if getattr(args, 'gains', None) else None
+    except (ConfigError, GainsError) as e:
+        _say('refused to start: {}'.format(e))
+        return safety.EXIT_INVALID
+    devices = _open_devices(config, args.sysfs_root)
+    if devices is None:
+        return safety.EXIT_DEVICES
+    try:
+        return COMMANDS[args.command](args, config, gains, devices)
+    finally:
+        devices.close()
+
+
+def _run(args, config, gains, devices):
+    log_path = args.log or time.strftime('tipbot-%Y%m%d-%H%M%S.log')
+    _say('running {} ({} variant, ts {} s), log {}'.format(gains.path, gains.model_variant,
+                                                         gains.ts_s, log_path))
+    code, _ = run_session(devices, gains, config, MonotonicClock(), log_path=log_path,
+                          duration_s=args.duration)
+    return code
+
+
+def _gyro(devices, config):
+    try:
+        cal = calibrate_gyro(devices, MonotonicClock(), CHECK_PERIOD_S, config['gyro_calibration'])
+    except safety.SafetyStop as e:
+        _say(str(e))
+        return None, e.exit_code
+    print('gyro bias {:.3f} deg/s (rate {}..{} deg/s, angle change {} deg over {} samples)'.format(
+        cal.gyro_bias_dps, cal.rate_min_dps, cal.rate_max_dps, cal.angle_change_deg, cal.samples))
+    return cal, safety.EXIT_OK
+
+
+def _check(args, config, gains, devices):
+    code = safety.EXIT_OK
+    print('devices: ok ({})'.format(', '.join('{} {}'.format(k, v) for k, v in sorted(config['ports'].items()))))
+    try:
+        enc, gyro = devices.read_raw()
+        bv = devices.read_battery_v()
+    except (OSError, ValueError) as e:
+        _say('read failed: {}'.format(e))
+        return safety.EXIT_DEVICE_FAILURE
+    print('encoders {} counts (counts_per_rot {}), gyro angle {} deg, rate {} deg/s'.format(
+        list(enc), list(devices.counts_per_rot), gyro[0], gyro[1]))
+    minimum = config['limits']['min_battery_v']
+    if bv < minimum:
+        _say('battery {:.2f} V is below limits.min_battery_v = {} V'.format(bv, minimum))
+        code = safety.EXIT_REFUSED
+    else:
+        print('battery {:.2f} V (minimum {} V)'.format(bv, minimum))
+    _, gyro_code = _gyro(devices, config)
+    return code or gyro_code
+
+
+def _calibrate(args, config, gains, devices):
+    return _gyro(devices, config)[1]
+
+
+def _bench(args, config, gains, devices):
+    brick_bench(devices, gains, config, args.ticks)
+    return safety.EXIT_OK
+
+
+COMMANDS = {'run': _run, 'check': _check, 'calibrate': _calibrate, 'bench': _bench}

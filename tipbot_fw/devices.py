@@ -1,0 +1,100 @@
+"""The device interface the control loop talks to, and an in-memory implementation.
+
+Raw readings cross this interface untouched (counts and integer gyro units, no polarity, no
+offsets): the signal chain owns every conversion, so a log of raw readings replays exactly.
+"""
+
+# One read_raw() is 5 sysfs reads on the brick: 4 encoder `position` files + the gyro `bin_data`.
+READS_PER_RAW = 5
+
+
+class Devices(object):
+    """Interface (docs/architecture.md). Motor order everywhere: right wheel, left wheel, th2, th3."""
+
+    # Encoder counts per motor revolution, in motor order; implementations read `count_per_rot`.
+    counts_per_rot = (360, 360, 360, 360)
+
+    def read_raw(self):
+        """-> ((enc_r, enc_l, enc_2, enc_3) counts, (gyro_angle_deg, gyro_rate_dps)), all ints."""
+        raise NotImplementedError
+
+    def write_duties(self, duties):
+        """4 ints in [-100, 100] (r, l, th2, th3), already signed for the motor; writes only changed ones."""
+        raise NotImplementedError
+
+    def read_battery_v(self):
+        """Battery voltage (float V); called at start and about once per second outside the tick."""
+        raise NotImplementedError
+
+    def stop_all(self):
+        """Duty 0 and the stop command on every motor. Must never raise."""
+        raise NotImplementedError
+
+    def close(self):
+        pass
+
+
+class MemoryDevices(Devices):
+    """In-memory devices for tests and the bench.
+
+    Readings come from source() -> (enc4, gyro2) when a callable is given (it may raise to
+    simulate a failed read), else from the settable attributes `enc` and `gyro`. battery_v is
+    a float or a callable returning one. Counters: raw_reads (read_raw calls), duty_writes
+    (individual duty values written, i.e. changed ones), write_calls, battery_reads, stop_calls.
+    If `trace` is a list, every operation appends its name to it. write_duties refuses (ValueError)
+    anything but 4 ints in [-100, 100], as a check on the firmware.
+    """
+
+    def __init__(self, source=None, battery_v=8.0, counts_per_rot=(360, 360, 360, 360)):
+        self.source = source
+        self.enc = (0, 0, 0, 0)
+        self.gyro = (0, 0)
+        self.battery_v = battery_v
+        self.counts_per_rot = tuple(counts_per_rot)
+        self.duties = [0, 0, 0, 0]
+        self.raw_reads = 0
+        self.duty_writes = 0
+        self.write_calls = 0
+        self.battery_reads = 0
+        self.stop_calls = 0
+        self.closed = False
+        self.trace = None
+
+    def read_raw(self):
+        self.raw_reads += 1
+        if self.trace is not None:
+            self.trace.append('read_raw')
+        if self.source is not None:
+            return self.source()
+        return self.enc, self.gyro
+
+    def write_duties(self, duties):
+        self.write_calls += 1
+        if self.trace is not None:
+            self.trace.append('write_duties')
+        if len(duties) != 4:
+            raise ValueError('write_duties needs 4 duties, got {!r}'.format(duties))
+        for d in duties:
+            if type(d) is not int or not -100 <= d <= 100:
+                raise ValueError('duty {!r} is not an int in [-100, 100]'.format(d))
+        last = self.duties
+        for i in range(4):
+            if duties[i] != last[i]:
+                last[i] = duties[i]
+                self.duty_writes += 1
+
+    def read_battery_v(self):
+        self.battery_reads += 1
+        if self.trace is not None:
+            self.trace.append('read_battery_v')
+        b = self.battery_v
+        return b() if callable(b) else b
+
+    def stop_all(self):
+        self.stop_calls += 1
+        if self.trace is not None:
+            self.trace.append('stop_all')
+        self.duties = [0, 0, 0, 0]
+
+    def close(self):
+        self.closed = True

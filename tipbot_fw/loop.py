@@ -1,0 +1,182 @@
+"""The fixed-period control loop: timing, the tick pipeline, housekeeping, overrun policy.
+
+Tick pipeline: read raw -> Core (signal chain, detector, control, saturation, duty, log row) ->
+write duties -> the row's time columns. Housekeeping (the battery, about once per second) runs in the slack AFTER the
+tick's writes, so a control tick does exactly one read_raw (5 sysfs reads) and one
+write_duties (at most 4 writes).
+
+Timing: tick k is released at t0 + k * period, the deadline advanced by exactly one period each
+tick (no drift). A tick whose work ends after the next release is an overrun: the next tick
+starts at once; releases missed entirely are skipped (whole periods, the grid is kept) and
+counted. limits.max_consecutive_overruns overruns in a row stop the run. The signal chain and
+the detector always assume the nominal period (the model is discrete at ts_s).
+
+Motors are not stopped here: the caller (tipbot_fw.session) stops them in its finally clause.
+"""
+import gc
+import os
+
+from tipbot_fw import logfile
+from tipbot_fw.core import FALL
+from tipbot_fw.safety import DeviceFailure, FallDetected, JointLimit, OverrunLimit
+
+OVERRUN = logfile.FLAG_BITS['overrun']
+
+
+class LoopStats(object):
+    def __init__(self):
+        self.ticks = 0
+        self.overruns = 0
+        self.max_consecutive_overruns = 0
+        self.skipped_periods = 0
+        self.battery_reads = 0
+        self.battery_v = None
+        self.realtime = None
+
+    def as_dict(self):
+        return dict(self.__dict__)
+
+
+def request_realtime(priority):
+    """Ask for SCHED_FIFO at `priority` (0: don't). -> (info dict for the log, restore function)."""
+    info = {'requested_priority': priority, 'granted': False, 'error': None}
+    if priority <= 0 or not hasattr(os, 'sched_setscheduler'):
+        info['error'] = 'not requested' if priority <= 0 else 'not supported on this platform'
+        return info, lambda: None
+    try:
+        old_policy = os.sched_getscheduler(0)
+        old_param = os.sched_getparam(0)
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    except OSError as e:
+        info['error'] = str(e)
+        return info, lambda: None
+    info['granted'] = True
+
+    def restore():
+        try:
+            os.sched_setscheduler(0, old_policy, old_param)
+        except OSError:
+            pass
+    return info, restore
+
+
+class ControlLoop(object):
+    """Runs `core` on `devices` every period_s on `clock`, rows into the LogBuffer `log`.
+
+    battery_v: the voltage read before start (re-read every battery_period_s); duration_s:
+    stop after that many periods' worth of ticks (None: run until stopped); realtime_priority:
+    SCHED_FIFO priority to ask for during the run (0: don't).
+    """
+
+    def __init__(self, devices, core, clock, log, period_s, battery_v, battery_period_s=1.0,
+                 max_consecutive_overruns=5, duration_s=None, realtime_priority=0):
+        self.devices = devices
+        self.core = core
+        self.clock = clock
+        self.log = log
+        self.period_s = period_s
+        self.battery_v = battery_v
+        self.battery_every = max(1, int(round(battery_period_s / period_s)))
+        self.max_consecutive_overruns = max_consecutive_overruns
+        self.n_ticks = None if duration_s is None else max(1, int(round(duration_s / period_s)))
+        self.realtime_priority = realtime_priority
+        self.stats = LoopStats()
+
+    def run(self):
+        """Run until duration_s is reached (returns LoopStats) or an exception stops it."""
+        stats = self.stats
+        stats.realtime, restore_sched = request_realtime(self.realtime_priority)
+        gc_was_enabled = gc.isenabled()
+        gc.collect()
+        gc.disable()   # no collector pause inside a tick; the ticks create no reference cycles
+        try:
+            self._run(stats)
+        finally:
+            if gc_was_enabled:
+                gc.enable()
+            restore_sched()
+        return stats
+
+    def _stop(self, k, flags):
+        y = self.log.mem[k % self.log.capacity, logfile.MEM_Y:logfile.MEM_Y + 5]
+        lim1, lim2, lim3 = self.core.limits
+        if flags & FALL:
+            raise FallDetected('fall: th1 = {:.3f} rad beyond limits.th1_rad = {} at tick {}'.format(
+                y[2], lim1, k))
+        raise JointLimit('joint limit: th2 = {:.3f} rad, th3 = {:.3f} rad (limits {}, {}) at tick {}'.format(
+            y[3], y[4], lim2, lim3, k))
+
+    def _run(self, stats):
+        # Locals: attribute and global lookups cost real time on the brick.
+        dev = self.devices
+        read = dev.read_raw
+        write = dev.write_duties
+        now = self.clock.now
+        sleep_until = self.clock.sleep_until
+        core = self.core
+        log = self.log
+        buf = log.data
+        cap = log.capacity
+        pack_times = logfile.TIMES.pack_into
+        row_bytes = logfile.MEM_ROW_BYTES
+        period = self.period_s
+        n_ticks = self.n_ticks
+        battery_every = self.battery_every
+        max_overruns = self.max_consecutive_overruns
+        stats.battery_v = self.battery_v
+        core.set_battery(self.battery_v)
+        consecutive = 0
+        step = core.start
+        k = 0       # ticks whose row is stored
+        release = log.t0 = now()
+        try:
+            while True:
+                t = now()
+                try:
+                    enc, gyro = read()
+                except (OSError, ValueError) as e:
+                    raise DeviceFailure('read_raw failed at tick {}: {}'.format(k, e))
+                offset = (k % cap) * row_bytes
+                duties, stop = step(enc, gyro, buf, offset)
+                step = core.step
+                if stop:
+                    pack_times(buf, offset, t, now())
+                    k += 1
+                    self._stop(k - 1, stop)
+                try:
+                    write(duties)
+                except (OSError, ValueError) as e:
+                    raise DeviceFailure('write_duties failed at tick {}: {}'.format(k, e))
+                pack_times(buf, offset, t, now())
+                k += 1
+                if k == n_ticks:
+                    return
+                if k % battery_every == 0:
+                    try:
+                        bv = dev.read_battery_v()
+                    except (OSError, ValueError) as e:
+                        raise DeviceFailure('battery read failed after tick {}: {}'.format(k - 1, e))
+                    stats.battery_reads += 1
+                    stats.battery_v = bv
+                    if bv != core.battery_v:
+                        core.set_battery(bv)
+                release += period
+                late = now() - release
+                if late > 0.0:
+                    log.mem[(k - 1) % cap, logfile.MEM_FLAGS] += OVERRUN
+                    stats.overruns += 1
+                    consecutive += 1
+                    if consecutive > stats.max_consecutive_overruns:
+                        stats.max_consecutive_overruns = consecutive
+                    if consecutive >= max_overruns:
+                        raise OverrunLimit('{} consecutive overruns (limits.max_consecutive_overruns), '
+                                           'last one {:.1f} ms late at tick {}'.format(consecutive, late * 1e3, k - 1))
+                    missed = int(late / period)
+                    if missed:
+                        release += missed * period
+                        stats.skipped_periods += missed
+                else:
+                    consecutive = 0
+                sleep_until(release)   # returns at once when late
+        finally:
+            log.count = stats.ticks = k

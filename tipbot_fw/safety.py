@@ -1,0 +1,118 @@
+"""Why a run stops, with which exit code, and signal handling that cannot skip the motor stop.
+
+Exit codes of `python3 -m tipbot_fw` (also in README/cli help):
+  0   run reached --duration (or check/calibrate succeeded)
+  1   unexpected error (a bug): motors stopped, log written, traceback printed
+  2   invalid command line, config or gains: refused to start, devices not opened
+  3   devices missing or with the wrong driver: refused to start, motors untouched
+  4   refused to start: battery below limits.min_battery_v, or the gyro moved during calibration
+  5   a device read or write failed during the run
+  6   fall (|th1| beyond limits.th1_rad) or a joint beyond its limit: stopped in that tick
+  7   limits.max_consecutive_overruns late ticks in a row
+  130 interrupted (Ctrl-C, SIGINT)
+  143 terminated (SIGTERM)
+"""
+import signal
+
+EXIT_OK = 0
+EXIT_ERROR = 1
+EXIT_INVALID = 2
+EXIT_DEVICES = 3
+EXIT_REFUSED = 4
+EXIT_DEVICE_FAILURE = 5
+EXIT_LIMIT = 6
+EXIT_OVERRUN = 7
+EXIT_INTERRUPT = 130
+EXIT_TERMINATED = 143
+
+
+class SafetyStop(Exception):
+    """A planned stop: known reason, known exit code, one-line message."""
+    reason = 'error'
+    exit_code = EXIT_ERROR
+
+
+class FallDetected(SafetyStop):
+    reason = 'fall'
+    exit_code = EXIT_LIMIT
+
+
+class JointLimit(SafetyStop):
+    reason = 'joint_limit'
+    exit_code = EXIT_LIMIT
+
+
+class DeviceFailure(SafetyStop):
+    reason = 'device_failure'
+    exit_code = EXIT_DEVICE_FAILURE
+
+
+class OverrunLimit(SafetyStop):
+    reason = 'overruns'
+    exit_code = EXIT_OVERRUN
+
+
+class LowBattery(SafetyStop):
+    reason = 'low_battery'
+    exit_code = EXIT_REFUSED
+
+
+class CalibrationError(SafetyStop):
+    reason = 'calibration'
+    exit_code = EXIT_REFUSED
+
+
+class Terminated(BaseException):
+    """Raised by the SIGTERM handler. A BaseException, like KeyboardInterrupt, so that no
+    `except Exception` on the way can swallow it."""
+    reason = 'sigterm'
+    exit_code = EXIT_TERMINATED
+
+
+def classify(exc):
+    """-> (reason, exit code, one-line message) for an exception that ended a run."""
+    if isinstance(exc, (SafetyStop, Terminated)):
+        return exc.reason, exc.exit_code, str(exc) or exc.reason
+    if isinstance(exc, KeyboardInterrupt):
+        return 'keyboard_interrupt', EXIT_INTERRUPT, 'interrupted'
+    return 'exception', EXIT_ERROR, '{}: {}'.format(type(exc).__name__, exc)
+
+
+class SignalGuard(object):
+    """SIGTERM -> Terminated, SIGINT -> KeyboardInterrupt, each raised at most ONCE.
+
+    After the first signal (or disarm()), further signals are only counted: a second Ctrl-C
+    cannot interrupt the motor stop and log write that the first one started.
+    """
+
+    def __init__(self):
+        self.armed = False
+        self.ignored = 0
+        self._previous = {}
+
+    def _handler(self, signum, frame):
+        if not self.armed:
+            self.ignored += 1
+            return
+        self.armed = False
+        if signum == signal.SIGTERM:
+            raise Terminated('terminated by SIGTERM')
+        raise KeyboardInterrupt()
+
+    def install(self):
+        try:
+            for sig in (signal.SIGTERM, signal.SIGINT):
+                self._previous[sig] = signal.signal(sig, self._handler)
+        except ValueError:
+            pass    # not the main thread: Python delivers signals only there anyway
+        self.armed = True
+        return self
+
+    def disarm(self):
+        self.armed = False
+
+    def restore(self):
+        self.armed = False
+        for sig, handler in self._previous.items():
+            signal.signal(sig, signal.SIG_DFL if handler is None else handler)
+        self._previous = {}

@@ -1,0 +1,128 @@
+"""One balancing run: battery check, gyro calibration, the loop, and the guaranteed shutdown.
+
+Whatever ends the run (duration reached, fall, SIGTERM, Ctrl-C, device failure, overruns, a bug)
+the motors are stopped first, then the log is written, then the reason is reported.
+"""
+import sys
+import time
+import traceback
+
+import numpy as np
+
+import tipbot_fw
+from tipbot_fw import logfile
+from tipbot_fw.calibration import calibrate_gyro
+from tipbot_fw.config import motor_polarity
+from tipbot_fw.core import Core
+from tipbot_fw.loop import ControlLoop
+from tipbot_fw.safety import (EXIT_ERROR, EXIT_OK, DeviceFailure, LowBattery, SignalGuard,
+                              classify)
+
+
+def base_header(gains, config, duration_s):
+    return {
+        'versions': {'python': sys.version.split()[0], 'numpy': np.__version__,
+                     'tipbot_fw': tipbot_fw.__version__},
+        'start_wall_time_s': time.time(),
+        'start_wall_time': time.strftime('%Y-%m-%dT%H:%M:%SZ', time.gmtime()),
+        'gains': {'path': gains.path, 'sha256': gains.sha256, 'schema_version': gains.schema_version,
+                  'state_units_file': gains.state_units_file, 'u_max_v': gains.u_max_v,
+                  'closed_loop_spectral_radius': gains.closed_loop_spectral_radius,
+                  'detector_spectral_radius': gains.detector_spectral_radius,
+                  'parameters_sha256': gains.parameters_sha256, 'generator': gains.generator},
+        'model_variant': gains.model_variant,
+        'ts_s': gains.ts_s,
+        'config': config,
+        'duration_s_requested': duration_s,
+        'flag_bits': logfile.FLAG_BITS,
+    }
+
+
+def _say(msg):
+    sys.stderr.write('tipbot: {}\n'.format(msg))
+    sys.stderr.flush()
+
+
+def run_session(devices, gains, config, clock, log_path=None, duration_s=None,
+                realtime_priority=None, say=_say):
+    """Balance until duration_s (None: until stopped). -> (exit code, log header dict).
+
+    Never raises; devices.stop_all() is called on every exit. The log (if log_path) is written
+    on every exit too, with the rows recorded so far.
+    """
+    if realtime_priority is None:
+        realtime_priority = config['realtime_priority']
+    header = base_header(gains, config, duration_s)
+    header['counts_per_rot'] = list(devices.counts_per_rot)
+    log = logfile.LogBuffer(_log_rows(config, gains.ts_s, duration_s))
+    loop = None
+    core = None
+    error = None
+    guard = SignalGuard()
+    try:
+        try:
+            guard.install()
+            lim = config['limits']
+            try:
+                bv = devices.read_battery_v()
+            except (OSError, ValueError) as e:
+                raise DeviceFailure('battery read failed: {}'.format(e))
+            header['battery_v_start'] = bv
+            if bv < lim['min_battery_v']:
+                raise LowBattery('battery at {:.2f} V is below limits.min_battery_v = {} V: charge it'.format(
+                    bv, lim['min_battery_v']))
+            cal = calibrate_gyro(devices, clock, gains.ts_s, config['gyro_calibration'])
+            header['calibration'] = cal.as_dict()
+            core = Core(gains, config, cal.gyro_bias_dps, devices.counts_per_rot)
+            loop = ControlLoop(devices, core, clock, log, gains.ts_s, bv,
+                               battery_period_s=config['battery_period_s'],
+                               max_consecutive_overruns=lim['max_consecutive_overruns'],
+                               duration_s=duration_s, realtime_priority=realtime_priority)
+            loop.run()
+        except BaseException as e:
+            error = e
+        finally:
+            guard.disarm()
+    finally:
+        try:
+            devices.stop_all()
+        except Exception as e:   # stop_all must not raise; if it does, say so loudly
+            say('stop_all failed: {!r}'.format(e))
+    # From here on a signal is only counted (guard disarmed): the log gets written.
+    try:
+        if error is None:
+            reason, code, msg = 'completed', EXIT_OK, 'completed'
+        else:
+            reason, code, msg = classify(error)
+            if code == EXIT_ERROR:
+                traceback.print_exception(type(error), error, error.__traceback__)
+        header['stop_reason'] = reason
+        header['stop_message'] = msg
+        header['exit_code'] = code
+        header['stop_wall_time_s'] = time.time()
+        if core is not None and core.x0 is not None:
+            header['encoder_offsets'] = list(core.chain.offsets)
+            header['x_tilde_0'] = core.x0
+        if loop is not None:
+            header['loop'] = loop.stats.as_dict()
+        header['first_tick'] = log.first_tick()
+        header['ticks'] = log.count
+        if log_path:
+            try:
+                logfile.write_log(log_path, header, log.file_blocks(motor_polarity(config)), log.kept())
+            except Exception as e:   # the motors are stopped: report, never raise
+                say('could not write the log {}: {!r}'.format(log_path, e))
+                if code == EXIT_OK:
+                    code = header['exit_code'] = EXIT_ERROR
+        say('stopped: {} (exit {}, {} ticks)'.format(msg, code, log.count))
+        return code, header
+    finally:
+        guard.restore()
+
+
+def _log_rows(config, ts_s, duration_s):
+    cap = config['log_max_rows']
+    if duration_s is not None:
+        cap = min(cap, int(round(duration_s / ts_s)) + 1)
+    return max(1, cap)
+
