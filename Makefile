@@ -18,14 +18,24 @@ PYTEST_ARGS ?=
 # make bench TICKS=2000
 TICKS    ?= 1000
 # make deploy HOST=robot@ev3dev.local [REMOTE_DIR=tipbot] [DEPLOY_VARIANT=physical] [CONFIG=my.json]
+#             [SERVICE=1] [SSH='ssh -F my_ssh_config']      (tools/deploy; host needs only python3 + ssh)
+# make run HOST=... [DURATION=10] [RUN_ARGS='--sysfs-root DIR']; make logs HOST=... [LOGS_DIR=dir]
 HOST     ?=
 REMOTE_DIR ?= tipbot
 DEPLOY_VARIANT ?= $(if $(VARIANT),$(VARIANT),physical)
 CONFIG   ?=
+SERVICE  ?=
 SSH      ?= ssh
-STAGE    := build/ev3
-# make replay LOG=logs/ev3dev/run-....log
+STAGE    ?= build/ev3
+DURATION ?=
+RUN_ARGS ?=
+LOGS_DIR ?=
+DEPLOY   = $(PYTHON) tools/deploy
+CONNECT  = $(HOST) --remote-dir '$(REMOTE_DIR)' --ssh "$(SSH)"
+# make replay LOG=logs/ev3dev.local/tipbot-....log [GAINS=other.json] [REPLAY_ARGS=...]
 LOG      ?=
+GAINS    ?=
+REPLAY_ARGS ?=
 
 .DEFAULT_GOAL := help
 .PHONY: help venv test gains paper-check sim replay bench brick stage deploy run logs clean distclean
@@ -37,12 +47,13 @@ help:
 	@echo "  sim          run the firmware on the simulated robot"
 	@echo "  gains        regenerate gains/*.json (TS=0.010 VARIANT=paper|physical)"
 	@echo "  paper-check  compare the paper variant's gains with the paper's Appendix C"
-	@echo "  replay       replay a robot log on the host (LOG=file)"
+	@echo "  replay       replay a robot log on the host (LOG=file; GAINS=other.json)"
 	@echo "  bench        guest instructions per control tick on the virtual brick (TICKS=N)"
 	@echo "  brick        set up the virtual brick for 'make bench' (root, ~2 min)"
-	@echo "  deploy       copy firmware+gains to the brick (HOST=robot@ev3dev.local)"
-	@echo "  run          start the controller on the brick over ssh (HOST=...)"
-	@echo "  logs         fetch the brick's run logs into logs/<host>/ (HOST=...)"
+	@echo "  stage        lay out what deploy copies, in $(STAGE) (DEPLOY_VARIANT=, CONFIG=)"
+	@echo "  deploy       copy what changed to the brick over ssh (HOST=robot@ev3dev.local; SERVICE=1)"
+	@echo "  run          run the controller on the brick over ssh (HOST=...; DURATION=s)"
+	@echo "  logs         fetch the brick's new run logs into logs/<host>/ (HOST=...)"
 	@echo "  clean        remove build products and caches; distclean also removes $(VENV)"
 
 venv: $(STAMP)
@@ -72,8 +83,8 @@ sim: venv
 	$(VPY) -m hostsim sim $(SIM_ARGS)
 
 replay: venv
-	@test -n "$(LOG)" || { echo "usage: make replay LOG=path/to/run.log" >&2; exit 2; }
-	$(VPY) -m hostsim replay $(LOG)
+	@test -n "$(LOG)" || { echo "usage: make replay LOG=path/to/run.log [GAINS=other.json]" >&2; exit 2; }
+	$(VPY) -m hostsim replay $(LOG) $(if $(GAINS),--gains $(GAINS)) $(REPLAY_ARGS)
 
 # Instructions per control tick of tipbot_fw.bench on the virtual brick (an ARM926 under QEMU
 # with Debian armel's Python 3.11 + numpy 1.24: an approximation of the brick's Python 3.5 +
@@ -84,36 +95,35 @@ bench: venv
 brick:
 	tools/brick-setup
 
-# What goes onto the brick, laid out as on the brick (see ev3/tipbot).
+# What goes onto the brick, laid out as in its install directory (for inspection; deploy
+# stages in memory and writes the same tree here).
 stage:
-	@test -f gains/$(DEPLOY_VARIANT).json || { echo "no gains/$(DEPLOY_VARIANT).json: run 'make gains'" >&2; exit 1; }
-	rm -rf $(STAGE)
-	mkdir -p $(STAGE)
-	tar -cf - --exclude=__pycache__ --exclude='*.pyc' tipbot_fw | tar -C $(STAGE) -xf -
-	install -m 755 ev3/tipbot ev3/install.sh $(STAGE)/
-	install -m 644 ev3/tipbot.service $(STAGE)/
-	install -m 644 gains/$(DEPLOY_VARIANT).json $(STAGE)/gains.json
-	$(if $(CONFIG),install -m 644 $(CONFIG) $(STAGE)/config.json)
-	@echo "staged in $(STAGE): gains $(DEPLOY_VARIANT)$(if $(CONFIG), config $(CONFIG))"
+	$(DEPLOY) stage --variant $(DEPLOY_VARIANT) $(if $(CONFIG),--config $(CONFIG)) --stage $(STAGE)
 
 define need_host
 	@test -n "$(HOST)" || { echo "usage: make $@ HOST=robot@ev3dev.local" >&2; exit 2; }
 endef
 
-# Copies the staged tree to ~/$(REMOTE_DIR) on the brick (tar over ssh: the brick needs nothing
-# but tar), replacing the old tipbot_fw/ and keeping logs/, then checks the brick's packages.
-deploy: stage
+# Sends only what changed since the last deploy (sha256 manifest, tar over one ssh connection;
+# the brick needs nothing but sh and tar), removes what is no longer deployed, keeps logs/,
+# then checks the brick's Python, numpy and ev3dev2 (install.sh --check). SERVICE=1 also
+# installs the systemd unit.
+deploy:
 	$(need_host)
-	tar -C $(STAGE) -cf - . | $(SSH) $(HOST) 'set -e; mkdir -p $(REMOTE_DIR); rm -rf $(REMOTE_DIR)/tipbot_fw; tar -C $(REMOTE_DIR) -xf -; $(REMOTE_DIR)/install.sh --check'
+	$(DEPLOY) deploy $(CONNECT) --variant $(DEPLOY_VARIANT) $(if $(CONFIG),--config $(CONFIG)) \
+	  --stage $(STAGE) $(if $(SERVICE),--service)
 
+# Runs the launcher on the brick in the foreground and reports its exit status (Ctrl-C: the
+# firmware stops the motors and writes its log).
 run:
 	$(need_host)
-	$(SSH) $(if $(shell test -t 0 && echo tty),-t) $(HOST) '$(REMOTE_DIR)/tipbot $(RUN_ARGS)'
+	$(DEPLOY) run $(CONNECT) $(if $(DURATION),--duration $(DURATION)) -- $(RUN_ARGS)
 
+# Fetches the run logs not yet here (and the brick's gains.json, as gains-<sha256>.json) into
+# logs/<host>/ (LOGS_DIR=... elsewhere).
 logs:
 	$(need_host)
-	mkdir -p logs/$(lastword $(subst @, ,$(HOST)))
-	$(SSH) $(HOST) 'cd $(REMOTE_DIR) && mkdir -p logs && tar -cf - logs' | tar -C logs/$(lastword $(subst @, ,$(HOST))) --strip-components=1 -xvf -
+	$(DEPLOY) logs $(CONNECT) $(if $(LOGS_DIR),--dest $(LOGS_DIR))
 
 clean:
 	rm -rf build dist *.egg-info .pytest_cache .cache

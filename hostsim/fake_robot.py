@@ -1,0 +1,208 @@
+"""A real-time fake EV3: the simulated robot behind a fake sysfs tree, on the wall clock.
+
+    python -m hostsim.fake_robot --root DIR [--scenario FILE|NAME] [--duration S]
+                                 [--write-config FILE] [--trace FILE.npz]
+
+creates a hostsim.fake_ev3 tree in DIR and keeps it in step with the nonlinear plant
+(hostsim.plant, the scenario's plant variant and parameter scales) and the sensor models
+(hostsim.sensors) in real time, so that the unmodified firmware can run against it as a
+SEPARATE process, exactly as on the brick:
+
+    python3 -m tipbot_fw run --gains gains/physical.json --config CFG --sysfs-root DIR
+
+(or the deployed launcher over ssh: tests/test_deploy.py). The files on disk are the only
+link between the two processes. This is the real-time counterpart of hostsim.fil, which runs
+the firmware in lock-step with a virtual clock in one process.
+
+Every ~1 ms (--step-ms) the loop reads what the firmware wrote (FakeEV3.poll), integrates
+the plant from the previous poll to now with the voltages seen at the previous poll held
+(zero-order hold: the duty a client writes acts from the poll that sees it, 0-1 ms later),
+and publishes the new encoder counts, gyro angle/rate and battery voltage.
+
+Start: like a person holding the robot, the plant stays at the scenario's start pose (x0_si)
+until the firmware drives a motor (a nonzero duty in run-direct) or until --hold-s seconds
+after the firmware set the gyro to GYRO-G&A (its start-up; the gyro calibration at start
+must have ended by then). The scenario's pushes and disturbances are timed from that
+release. If |th1| passes 90 degrees the robot lies on the floor: the plant is frozen there.
+
+The firmware must be told the start pose, gyro mounting and wheel radius: --write-config
+FILE writes the matching firmware configuration (hostsim.fil.firmware_config; realtime
+priority 0), for `--config` or for `make deploy CONFIG=FILE`.
+
+Prints "fake_robot: ready ..." once the tree exists, a summary when it stops (after
+--duration seconds, or on SIGTERM / SIGINT). Not for accuracy studies: the host's scheduling
+makes runs unrepeatable; use hostsim.fil for that.
+"""
+import argparse
+import json
+import math
+import signal
+import sys
+import time
+
+import numpy as np
+
+from hostsim.fake_ev3 import DEFAULT_MOTOR_PORTS, FakeEV3
+from hostsim.fil import MODEL_INPUT, ROLES, firmware_config, scaled_params
+from hostsim.model import RobotModel, state_scale_to_si
+from hostsim.params import load_params
+from hostsim.plant import Plant
+from hostsim.scenario import disturbance_at, load_scenario, parse_scenario
+from hostsim.sensors import SensorModel
+
+DEFAULT_STEP_S = 0.001
+DEFAULT_HOLD_S = 1.5
+PLANT_DT_S = 0.001
+FALLEN_RAD = math.pi / 2
+
+
+class RealTimeRobot:
+    """Plant + sensors + FakeEV3 in ``root``, advanced by :meth:`step` at wall-clock times."""
+
+    def __init__(self, sc, root, params=None, hold_s=DEFAULT_HOLD_S):
+        self.sc = sc
+        nominal = load_params() if params is None else params
+        p = scaled_params(sc["param_scale"], nominal)
+        self.model = RobotModel(sc["plant_variant"], p)
+        to_model = 1.0 / np.diag(state_scale_to_si(self.model.variant))
+        self.plant = Plant(self.model, np.array(sc["x0_si"]) * to_model, dt_s=PLANT_DT_S)
+        self.config = firmware_config(sc, nominal["rw_m"])
+        s = sc["sensors"]
+        self.battery_v = s["battery_v"]
+        self.rng = np.random.default_rng(sc["seed"])
+        signs = tuple(self.config["polarity"][r] for r in ROLES)
+        self.sensors = SensorModel(p["rw_m"], motor_signs=signs, gyro_sign=int(s["gyro_sign"]),
+                                   gyro_bias_dps=s["gyro_bias_dps"], gyro_noise_dps=s["gyro_noise_dps"],
+                                   rng=self.rng, battery_v=self.battery_v)
+        self.ports = tuple(self.config["ports"][r] for r in ROLES)
+        if self.ports != DEFAULT_MOTOR_PORTS:
+            raise ValueError("the fake EV3 has its motors on %s" % (DEFAULT_MOTOR_PORTS,))
+        self.fake = FakeEV3(root_dir=root, battery_v=self.battery_v)
+        self.hold_s = hold_s
+        self.pushes = sorted((q["t_s"], q["th1_dot_rad_s"]) for q in sc["pushes"])
+        self.t_s = 0.0
+        self.t_release_s = None
+        self.t_gyro_mode_s = None
+        self.volts = np.zeros(5)
+        self.fallen = False
+        self.max_abs_th1 = 0.0
+        self.trace_t, self.trace_x, self.trace_u = [], [], []
+        self._publish()
+
+    def _publish(self):
+        enc, gyro, volts = self.sensors.read(self.plant.x_si, self.t_s)
+        self.fake.set_readings(enc, gyro, volts)
+
+    def _duties(self):
+        states = self.fake.poll()
+        return [states[p].duty if states[p].running else 0 for p in self.ports]
+
+    def step(self, t_s):
+        """Advance to wall-clock time t_s (s since start) and publish the readings there."""
+        duties = self._duties()
+        if self.t_release_s is None:
+            if self.t_gyro_mode_s is None and self.fake.gyro_mode == "GYRO-G&A":
+                self.t_gyro_mode_s = t_s
+            if any(duties) or (self.t_gyro_mode_s is not None and t_s - self.t_gyro_mode_s >= self.hold_s):
+                self.t_release_s = t_s
+        elif not self.fallen and t_s > self.t_s:
+            t_rel = self.t_s - self.t_release_s
+            while self.pushes and self.pushes[0][0] <= t_rel:
+                self.plant.x[7] += self.pushes.pop(0)[1]
+            u = self.volts + np.array(disturbance_at(self.sc, t_rel))
+            self.plant.advance(u, t_s - self.t_s)
+            x = self.plant.x_si
+            self.max_abs_th1 = max(self.max_abs_th1, abs(x[2]))
+            self.trace_t.append(t_s)
+            self.trace_x.append(x)
+            self.trace_u.append(u)
+            if abs(x[2]) > FALLEN_RAD:
+                self.fallen = True
+                self.plant.x[5:] = 0.0
+        # the voltages the firmware's duties give, held until the next poll
+        signs = self.sensors.motor_signs
+        v = np.zeros(5)
+        for i, d in enumerate(duties):
+            v[MODEL_INPUT[i]] = signs[i] * d / 100.0 * self.battery_v
+        self.volts = v
+        self.t_s = t_s
+        self._publish()
+
+    def save_trace(self, path):
+        np.savez(path, t_s=np.array(self.trace_t), x_si=np.array(self.trace_x).reshape(-1, 10),
+                 u_v=np.array(self.trace_u).reshape(-1, 5),
+                 t_release_s=np.nan if self.t_release_s is None else self.t_release_s)
+
+    def close(self):
+        self.fake.close()
+
+
+def run_realtime(robot, duration_s=None, step_s=DEFAULT_STEP_S, stop=lambda: False):
+    """Drive ``robot`` on the wall clock until duration_s (None: until stop() is true).
+    -> dict of loop statistics."""
+    t0 = time.monotonic()
+    steps = 0
+    worst = 0.0
+    last = 0.0
+    while not stop():
+        now = time.monotonic() - t0
+        if duration_s is not None and now >= duration_s:
+            break
+        robot.step(now)
+        steps += 1
+        worst = max(worst, now - last)
+        last = now
+        rest = step_s - (time.monotonic() - t0 - now)
+        if rest > 0:
+            time.sleep(rest)
+    elapsed = time.monotonic() - t0
+    return {"steps": steps, "elapsed_s": elapsed, "mean_step_s": elapsed / max(steps, 1),
+            "max_step_s": worst}
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(prog="python -m hostsim.fake_robot",
+                                 description=__doc__.split("\n\n")[0],
+                                 epilog=__doc__.split("\n\n", 1)[1],
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--root", required=True, metavar="DIR",
+                    help="directory for the fake sysfs tree (absent or empty); the firmware's --sysfs-root")
+    ap.add_argument("--scenario", metavar="FILE", help="hostsim scenario (file or name under scenarios/); "
+                    "used: x0_si, pushes, disturbances, plant_variant, param_scale, sensors, seed")
+    ap.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (default: at SIGTERM/SIGINT)")
+    ap.add_argument("--step-ms", type=float, default=DEFAULT_STEP_S * 1e3, help="loop period (default 1 ms)")
+    ap.add_argument("--hold-s", type=float, default=DEFAULT_HOLD_S,
+                    help="release the robot this long after the gyro mode switch at the latest (default 1.5)")
+    ap.add_argument("--write-config", metavar="FILE", help="write the matching firmware configuration to FILE")
+    ap.add_argument("--trace", metavar="FILE", help="save the plant's true trajectory (npz) at the end")
+    a = ap.parse_args(argv)
+    sc = load_scenario(a.scenario) if a.scenario else parse_scenario({}, "<default scenario>")
+    stopping = []
+
+    def on_signal(signum, frame):
+        stopping.append(signum)
+
+    signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGINT, on_signal)
+    robot = RealTimeRobot(sc, a.root, hold_s=a.hold_s)
+    try:
+        if a.write_config:
+            with open(a.write_config, "w") as f:
+                json.dump(robot.config, f, indent=1, sort_keys=True)
+        print("fake_robot: ready, sysfs root %s (scenario %s)" % (robot.fake.sysfs_root, sc["name"]), flush=True)
+        stats = run_realtime(robot, a.duration, a.step_ms * 1e-3, stop=lambda: bool(stopping))
+    finally:
+        robot.close()
+        if a.trace:
+            robot.save_trace(a.trace)
+    rel = "never released" if robot.t_release_s is None else "released at %.3f s" % robot.t_release_s
+    print("fake_robot: stopped after %.2f s: %s, max |th1| %.4f rad%s; %d steps, mean %.2f ms, max %.2f ms"
+          % (stats["elapsed_s"], rel, robot.max_abs_th1, ", FELL" if robot.fallen else "",
+             stats["steps"], stats["mean_step_s"] * 1e3, stats["max_step_s"] * 1e3), flush=True)
+    if robot.fake.errors:
+        print("fake_robot: client errors: %s" % "; ".join(robot.fake.errors[:5]), flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,402 @@
+"""Replay a run log on the host: the firmware's own signal chain, detector and controller.
+
+    python -m hostsim replay LOG [--gains FILE] [--logged-gains FILE] [--out DIR] [--no-plots]
+    (also: python -m hostsim.replay ..., make replay LOG=... [GAINS=...])
+
+The logged raw readings (encoder counts, gyro angle and rate, battery voltage) go through
+tipbot_fw.replay, i.e. the very tipbot_fw.core.Core the robot ran, and what comes out is
+compared with what the robot logged:
+
+* with the gains the robot ran (found by the sha256 the log records: --logged-gains, then
+  --gains, the log's directory (`make logs` fetches the brick's gains.json there as
+  gains-<sha256>.json), the path in the log, gains/*.json), the replayed signal chain output y,
+  estimates x~, disturbance estimates w^, inputs u and duties must equal the logged ones:
+  "replays exactly" when the largest difference is <= --tol (1e-9);
+* with other gains (--gains FILE whose hash differs), the same readings show what those gains
+  would have commanded (their own detector fed their own inputs; the readings stay those of
+  the logged run, so this is open loop: how the robot would then have moved is a question for
+  the simulator).
+
+Plots (PNG) of logged vs replayed (and other-gains) inputs and estimates go to --out
+(default out/replay/). Exit status: 0 replayed (exactly, if the logged gains were found),
+1 the replay differs from the log by more than --tol, 2 the log or a gains file cannot be used
+(truncated, corrupted, incompatible version, wrong gains): the message says which and why.
+"""
+import argparse
+import copy
+import glob
+import hashlib
+import os
+import sys
+
+import numpy as np
+
+import tipbot_fw
+from tipbot_fw import logfile
+from tipbot_fw import replay as fw_replay
+from tipbot_fw.config import ConfigError, config_from_overrides
+from tipbot_fw.gains import GainsError, load_gains
+
+REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+DEFAULT_OUT = os.path.join(REPO, "out", "replay")
+DEFAULT_TOL = 1e-9
+# Header fields a replay needs (docs/log-format.md); a log without them is from another version.
+REQUIRED_HEADER = ("gains", "config", "calibration", "counts_per_rot", "first_tick", "ts_s")
+ACTUATED = ("r", "l", "th2", "th3")
+
+
+class ReplayError(Exception):
+    """The log or a gains file cannot be replayed; the message says why (exit status 2)."""
+
+
+# ------------------------------------------------------------------------------ the log
+def load_log(path):
+    """-> (header, rows, notes) of an intact, compatible log; ReplayError naming the problem.
+
+    header["config"] is the configuration in force, completed with this version's defaults
+    for fields an older firmware did not have (notes say which)."""
+    if not os.path.isfile(path):
+        raise ReplayError("%s: no such log file" % path)
+    try:
+        header, rows = logfile.read_log(path)
+    except logfile.LogFormatError as e:
+        raise ReplayError(str(e))
+    except OSError as e:
+        raise ReplayError("%s: cannot read: %s" % (path, e))
+    written_by = header.get("versions", {}).get("tipbot_fw", "an unknown version")
+    names = [c.get("name") if isinstance(c, dict) else c for c in header.get("columns", [])]
+    if names != list(logfile.COLUMN_NAMES):
+        extra = sorted(set(names) - set(logfile.COLUMN_NAMES))
+        missing = sorted(set(logfile.COLUMN_NAMES) - set(names))
+        detail = (["unknown: " + ", ".join(extra[:6])] if extra else []) + \
+                 (["missing: " + ", ".join(missing[:6])] if missing else [])
+        raise ReplayError(
+            "%s: incompatible log: written by tipbot_fw %s with columns this tipbot_fw %s does not "
+            "read (%s); replay it with the tipbot version that wrote it"
+            % (path, written_by, tipbot_fw.__version__, "; ".join(detail) or "another column order"))
+    absent = [k for k in REQUIRED_HEADER if k not in header]
+    if absent or "sha256" not in header.get("gains", {}):
+        raise ReplayError("%s: incompatible log: its header lacks %s (written by tipbot_fw %s, this is %s)"
+                          % (path, ", ".join(absent or ["gains.sha256"]), written_by, tipbot_fw.__version__))
+    if header.get("first_tick", 0) > 0 and "encoder_offsets" not in header:
+        raise ReplayError("%s: incompatible log: a ring-buffer log without encoder_offsets" % path)
+    # The configuration in force: fields this version has and the log lacks (an older firmware)
+    # take their defaults, which the exactness check then vouches for; fields this version does
+    # not know, or values it refuses, make the log incompatible.
+    try:
+        config = config_from_overrides(header["config"], "%s: header.config" % path)
+    except ConfigError as e:
+        raise ReplayError("incompatible log: %s (written by tipbot_fw %s, this is %s)"
+                          % (e, written_by, tipbot_fw.__version__))
+    missing = sorted(set(_leaves(config)) - set(_leaves(header["config"])))
+    notes = []
+    if missing:
+        notes.append("the log's configuration lacks %s (an older firmware): replayed with the default%s"
+                     % (", ".join(missing), "s" if len(missing) > 1 else ""))
+    header["config"] = config
+    if len(rows) == 0:
+        raise ReplayError("%s: the log has no ticks (the run stopped before its control loop: %s)"
+                          % (path, header.get("stop_message", "see its header")))
+    return header, rows, notes
+
+
+def _leaves(doc, prefix=""):
+    """Dotted paths of the leaves of a nested dict."""
+    out = []
+    for key, value in doc.items():
+        if isinstance(value, dict):
+            out += _leaves(value, prefix + key + ".")
+        else:
+            out.append(prefix + key)
+    return out
+
+
+# ------------------------------------------------------------------------------ gains
+def _sha256(path):
+    with open(path, "rb") as f:
+        return hashlib.sha256(f.read()).hexdigest()
+
+
+def gains_candidates(log_path, header, explicit=()):
+    """Files that may hold the logged gains, in the order they are tried."""
+    out = [p for p in explicit if p]
+    log_dir = os.path.dirname(os.path.abspath(log_path))
+    out += sorted(glob.glob(os.path.join(log_dir, "gains-*.json")))
+    out += sorted(glob.glob(os.path.join(log_dir, "*.json")))
+    logged_path = header.get("gains", {}).get("path")
+    if logged_path:
+        out.append(logged_path)
+    out += sorted(glob.glob(os.path.join(REPO, "gains", "*.json")))
+    seen, unique = set(), []
+    for p in out:
+        key = os.path.abspath(p)
+        if key not in seen and os.path.isfile(p):
+            seen.add(key)
+            unique.append(p)
+    return unique
+
+
+def find_logged_gains(log_path, header, explicit=()):
+    """-> path of a file whose sha256 is the log's gains hash, or None."""
+    want = header["gains"]["sha256"]
+    for p in gains_candidates(log_path, header, explicit):
+        try:
+            if _sha256(p) == want:
+                return p
+        except OSError:
+            continue
+    return None
+
+
+def _load_gains(path):
+    try:
+        return load_gains(path)
+    except GainsError as e:
+        raise ReplayError(str(e))
+
+
+# ------------------------------------------------------------------------------ replay
+def groups():
+    """(label, column indices) of what the replay recomputes and compares."""
+    names = logfile.COLUMN_NAMES
+
+    def idx(pred):
+        return [i for i, n in enumerate(names) if pred(n)]
+    out = [
+        ("signal chain y", idx(lambda n: n.startswith("y_"))),
+        ("estimates x~", idx(lambda n: n.startswith("xt_"))),
+        ("disturbance w^", idx(lambda n: n.startswith("w_"))),
+        ("inputs u", idx(lambda n: n.startswith("u_") and not n.startswith("u_cmd_"))),
+        ("commanded u", idx(lambda n: n.startswith("u_cmd_"))),
+        ("duties", idx(lambda n: n.startswith("duty_"))),
+        ("gyro bias", idx(lambda n: n == "gyro_bias")),
+        ("flags", idx(lambda n: n == "flags")),
+    ]
+    return [(label, cols) for label, cols in out if cols]
+
+
+def max_abs_diff(a, b, cols):
+    if not cols or len(a) == 0:
+        return 0.0
+    d = np.abs(a[:, cols] - b[:, cols])
+    d[np.isnan(d)] = np.inf
+    return float(np.max(d))
+
+
+def replay_rows(header, rows, gains, as_logged=True):
+    """Rows recomputed by the firmware's replay with ``gains``.
+
+    as_logged=False replays with gains that are not the log's (a what-if): tipbot_fw.replay
+    refuses a gains hash other than the log's, so the other gains are presented under the
+    log's hash; everything else (config, gyro bias, encoder zeros, start) is the log's.
+    """
+    if not as_logged:
+        gains = copy.copy(gains)
+        gains.sha256 = header["gains"]["sha256"]
+    try:
+        return fw_replay.replay(header, rows, gains)
+    except (KeyError, TypeError, IndexError, AttributeError) as e:
+        written_by = header.get("versions", {}).get("tipbot_fw", "?")
+        if written_by == tipbot_fw.__version__:
+            raise ReplayError("tipbot_fw.replay failed on this log, although the log says it was written by "
+                              "this version (%s): %s: %s. Either the log comes from a development state of "
+                              "that version with another header, or this is a bug: report it with the log"
+                              % (written_by, type(e).__name__, e))
+        raise ReplayError("incompatible log: the replay needs %s, which this log lacks or has in another "
+                          "form (written by tipbot_fw %s, this is %s)" % (e, written_by, tipbot_fw.__version__))
+
+
+class Report(object):
+    """What replay_log found; attributes are set by replay_log."""
+
+    def __init__(self):
+        self.log_path = None
+        self.header = None
+        self.rows = None
+        self.logged_gains_path = None
+        self.replayed = None        # rows replayed with the logged gains (None if not found)
+        self.diffs = []             # [(label, max |replayed - logged|)]
+        self.max_diff = None
+        self.exact = None
+        self.other_gains_path = None
+        self.other = None           # rows replayed with the other gains
+        self.other_u_diff = None    # {input: (max abs, rms)} of u_other - u_logged
+        self.other_sat = None       # fraction of ticks with a saturated input
+        self.plots = []
+        self.notes = []
+
+
+def replay_log(log_path, gains_path=None, logged_gains_path=None, tol=DEFAULT_TOL):
+    """Replay a log; -> Report. ReplayError for logs and gains that cannot be used."""
+    r = Report()
+    r.log_path = log_path
+    header, rows, r.notes = load_log(log_path)
+    r.header, r.rows = header, rows
+    if logged_gains_path and not os.path.isfile(logged_gains_path):
+        raise ReplayError("--logged-gains %s: no such file" % logged_gains_path)
+    if logged_gains_path and _sha256(logged_gains_path) != header["gains"]["sha256"]:
+        raise ReplayError("--logged-gains %s (sha256 %s) is not the gains file of the log (sha256 %s)"
+                          % (logged_gains_path, _sha256(logged_gains_path)[:16], header["gains"]["sha256"][:16]))
+    other = None
+    if gains_path:
+        if not os.path.isfile(gains_path):
+            raise ReplayError("--gains %s: no such file" % gains_path)
+        if _sha256(gains_path) == header["gains"]["sha256"]:
+            logged_gains_path = logged_gains_path or gains_path
+        else:
+            other = gains_path
+    r.logged_gains_path = logged_gains_path or find_logged_gains(log_path, header)
+    if r.logged_gains_path:
+        g = _load_gains(r.logged_gains_path)
+        r.replayed = replay_rows(header, rows, g)
+        r.diffs = [(label, max_abs_diff(r.replayed, rows, cols)) for label, cols in groups()]
+        r.max_diff = max(d for _, d in r.diffs)
+        r.exact = r.max_diff <= tol
+    elif other is None:
+        raise ReplayError(
+            "%s was recorded with gains sha256 %s... (%s on the robot) and no file here has that "
+            "hash (looked in the log's directory, at that path and in gains/): pass it with --gains FILE "
+            "(`make logs` fetches the brick's gains.json next to the logs as gains-<sha256>.json)"
+            % (log_path, header["gains"]["sha256"][:16], header["gains"].get("path", "?")))
+    else:
+        r.notes.append("exact replay skipped: no file with the logged gains' sha256 %s found"
+                       % header["gains"]["sha256"][:16])
+    if other:
+        g = _load_gains(other)
+        if abs(g.ts_s - header["ts_s"]) > 1e-12:
+            raise ReplayError("--gains %s has ts_s %g s, the log was sampled every %g s: "
+                              "its readings cannot drive a controller with another period"
+                              % (other, g.ts_s, header["ts_s"]))
+        r.other_gains_path = other
+        r.other = replay_rows(header, rows, g, as_logged=False)
+        r.other_u_diff = {}
+        for name in ACTUATED:
+            c = logfile.col("u_" + name)
+            d = r.other[:, c] - rows[:, c]
+            r.other_u_diff[name] = (float(np.max(np.abs(d))), float(np.sqrt(np.mean(d * d))))
+        sat = sum(logfile.FLAG_BITS[k] for k in ("sat_r", "sat_l", "sat_th2", "sat_th3"))
+        r.other_sat = float(np.mean((r.other[:, logfile.FLAGS].astype(int) & sat) != 0))
+    return r
+
+
+# ------------------------------------------------------------------------------ output
+def describe(r, tol=DEFAULT_TOL):
+    h = r.header
+    v = h.get("versions", {})
+    g = h["gains"]
+    lines = ["log %s" % r.log_path,
+             "  recorded %s by tipbot_fw %s (Python %s, numpy %s); %s gains sha256 %s, ts %g s"
+             % (h.get("start_wall_time", "?"), v.get("tipbot_fw", "?"), v.get("python", "?"),
+                v.get("numpy", "?"), h.get("model_variant", "?"), g["sha256"][:16], h["ts_s"]),
+             "  %d ticks in the log (first tick %d of %s), stopped: %s (exit %s)"
+             % (len(r.rows), h["first_tick"], h.get("ticks", "?"), h.get("stop_message", "?"),
+                h.get("exit_code", "?"))]
+    if v.get("tipbot_fw") not in (None, tipbot_fw.__version__):
+        lines.append("  note: written by tipbot_fw %s, replayed by %s: differences may come from the version"
+                     % (v.get("tipbot_fw"), tipbot_fw.__version__))
+    if r.replayed is not None:
+        lines.append("replay with the logged gains (%s):" % r.logged_gains_path)
+        lines.append("  max |replayed - logged|: " + ", ".join("%s %.3g" % (label, d) for label, d in r.diffs))
+        if r.exact:
+            lines.append("  replays exactly (max difference %.3g <= %g)" % (r.max_diff, tol))
+        else:
+            worst = max(r.diffs, key=lambda x: x[1])
+            first = _first_bad_tick(r, tol)
+            lines.append("  DIFFERS from the log: %s by up to %.3g (> %g), first at row %d (t = %.3f s)"
+                         % (worst[0], worst[1], tol, first, r.rows[first, logfile.TIME]))
+    for note in r.notes:
+        lines.append("  " + note)
+    if r.other is not None:
+        lines.append("what-if with %s (same readings, open loop):" % r.other_gains_path)
+        lines.append("  inputs they would have commanded vs the logged ones, max |diff| (rms): "
+                     + ", ".join("u_%s %.3g V (%.3g)" % (n, m, s) for n, (m, s) in r.other_u_diff.items()))
+        lines.append("  ticks with a saturated input: %.1f %% (logged run: %.1f %%)"
+                     % (100 * r.other_sat, 100 * _sat_fraction(r.rows)))
+    for p in r.plots:
+        lines.append("plot %s" % p)
+    return "\n".join(lines)
+
+
+def _sat_fraction(rows):
+    sat = sum(logfile.FLAG_BITS[k] for k in ("sat_r", "sat_l", "sat_th2", "sat_th3"))
+    return float(np.mean((rows[:, logfile.FLAGS].astype(int) & sat) != 0))
+
+
+def _first_bad_tick(r, tol):
+    cols = [c for _, cs in groups() for c in cs]
+    d = np.abs(r.replayed[:, cols] - r.rows[:, cols])
+    bad = np.nonzero(np.any(~(d <= tol), axis=1))[0]
+    return int(bad[0]) if len(bad) else 0
+
+
+def plot(r, out_dir):
+    """inputs and estimates figures (PNG); -> list of paths."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    os.makedirs(out_dir, exist_ok=True)
+    stem = os.path.splitext(os.path.basename(r.log_path))[0]
+    t = r.rows[:, logfile.TIME]
+    series = []
+    if r.other is not None:
+        series.append(("replayed with %s" % os.path.basename(r.other_gains_path), r.other,
+                       dict(color="tab:blue", lw=1.0)))
+    series.append(("logged", r.rows, dict(color="k", lw=1.6)))
+    if r.replayed is not None:
+        series.append(("replayed (logged gains)", r.replayed, dict(color="tab:orange", lw=1.0, ls="--")))
+    paths = []
+    for what, names, units, ncols in (
+            ("inputs", ["u_" + n for n in ACTUATED], ["V"] * 4, 2),
+            ("estimates", ["xt_" + n for n in logfile.STATE_NAMES], list(logfile.STATE_UNITS), 2)):
+        nrows = (len(names) + ncols - 1) // ncols
+        fig, axes = plt.subplots(nrows, ncols, figsize=(11, 2.2 * nrows + 0.8), sharex=True, squeeze=False)
+        for ax, name, unit in zip(axes.flat, names, units):
+            c = logfile.col(name)
+            for label, rows, style in series:
+                ax.plot(t, rows[:, c], label=label, **style)
+            ax.set_ylabel("%s [%s]" % (name, unit))
+            ax.grid(True, alpha=0.3)
+        for ax in axes[-1]:
+            ax.set_xlabel("time since the loop started [s]")
+        for ax in list(axes.flat)[len(names):]:
+            ax.set_visible(False)
+        title = "%s: %s" % (stem, what)
+        if r.exact is not None:
+            title += " (replay max |diff| %.2g)" % r.max_diff
+        fig.suptitle(title)
+        axes.flat[0].legend(loc="best", fontsize="small")
+        fig.tight_layout()
+        path = os.path.join(out_dir, "%s-%s.png" % (stem, what))
+        fig.savefig(path, dpi=90)
+        plt.close(fig)
+        paths.append(path)
+    return paths
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(prog="python -m hostsim replay", description=__doc__.split("\n\n")[0],
+                                 epilog=__doc__.split("\n\n", 2)[2],
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("log", metavar="LOG", help="a run log (tipbot-*.log: from the brick via `make logs`, "
+                    "or from the simulator)")
+    ap.add_argument("--gains", metavar="FILE",
+                    help="gains to replay with: the logged ones (exact replay) or others (what-if)")
+    ap.add_argument("--logged-gains", metavar="FILE", help="the gains file the robot ran, if not found by its hash")
+    ap.add_argument("--out", metavar="DIR", default=DEFAULT_OUT, help="plot directory (default out/replay)")
+    ap.add_argument("--no-plots", action="store_true")
+    ap.add_argument("--tol", type=float, default=DEFAULT_TOL, help="exactness tolerance (default 1e-9)")
+    a = ap.parse_args(argv)
+    try:
+        r = replay_log(a.log, a.gains, a.logged_gains, a.tol)
+    except ReplayError as e:
+        sys.stderr.write("replay: error: %s\n" % e)
+        return 2
+    if not a.no_plots:
+        r.plots = plot(r, a.out)
+    print(describe(r, a.tol))
+    return 1 if r.exact is False else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

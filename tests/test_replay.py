@@ -1,0 +1,225 @@
+"""`python -m hostsim replay`: logs the firmware wrote in the simulator replay exactly through
+the firmware's own code; other gains show what they would have commanded; logs that are
+truncated, corrupted or from another version are refused with a message saying so."""
+import json
+import os
+import shutil
+import struct
+import zlib
+
+import numpy as np
+import pytest
+
+from hostsim import fil, replay
+from hostsim.scenario import parse_scenario
+from tipbot_fw import logfile
+
+REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+PHYSICAL = os.path.join(REPO, "gains", "physical.json")
+PAPER = os.path.join(REPO, "gains", "paper.json")
+# Small gyro noise and a push: the readings, estimates and inputs move (not a trivial log).
+SCENARIO = {"name": "replay-test", "duration_s": 1.5, "sensors": {"gyro_noise_dps": 0.3, "gyro_bias_dps": 0.7},
+            "pushes": [{"t_s": 0.2, "th1_dot_rad_s": 0.05}], "seed": 7}
+
+
+def simulate(path, sysfs=True, config_overrides=None):
+    sc = parse_scenario(dict(SCENARIO, gains=PHYSICAL))
+    fil.run_firmware(sc, log_path=str(path), sysfs=sysfs, config_overrides=config_overrides)
+    return str(path)
+
+
+@pytest.fixture(scope="module")
+def sim_log(tmp_path_factory):
+    """A log the firmware wrote while balancing the simulated robot through the fake EV3."""
+    return simulate(tmp_path_factory.mktemp("sim") / "tipbot-sim.log")
+
+
+def run_main(capsys, *argv):
+    code = replay.main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def write_raw(path, header, rows, version=logfile.FORMAT_VERSION, columns=None):
+    """A log file in the documented layout (docs/log-format.md), built without logfile.write_log:
+    magic, <IIIQ (version, header length, columns, rows), header JSON, float64 rows, CRC32."""
+    header = dict(header)
+    if columns is not None:
+        header["columns"] = columns
+    text = json.dumps(header, sort_keys=True).encode("utf-8")
+    body = np.ascontiguousarray(rows, dtype="<f8")
+    counts = struct.pack("<IIIQ", version, len(text), body.shape[1], body.shape[0])
+    crc = zlib.crc32(counts + text + body.tobytes()) & 0xffffffff
+    with open(path, "wb") as f:
+        f.write(logfile.MAGIC + counts + text + body.tobytes() + struct.pack("<I", crc))
+    return str(path)
+
+
+# ------------------------------------------------------------------ exact replay
+def test_a_simulated_log_replays_exactly_with_plots(sim_log, tmp_path, capsys):
+    code, out, err = run_main(capsys, sim_log, "--out", tmp_path / "plots")
+    assert code == 0, err
+    assert "replays exactly" in out
+    assert "replay with the logged gains (%s)" % PHYSICAL in out
+    for what in ("inputs", "estimates"):
+        png = tmp_path / "plots" / ("tipbot-sim-%s.png" % what)
+        assert png.stat().st_size > 10000
+    r = replay.replay_log(sim_log)
+    assert r.exact and r.max_diff <= 1e-9
+    # not vacuous: the run moved, the inputs varied, and every group was compared
+    rows = r.rows
+    assert len(rows) > 100
+    assert np.ptp(rows[:, logfile.col("u_r")]) > 0.1 and np.ptp(rows[:, logfile.col("xt_th1")]) > 1e-3
+    labels = [label for label, _ in r.diffs]
+    assert {"estimates x~", "inputs u", "signal chain y", "duties"} <= set(labels)
+
+
+def test_a_ring_buffer_log_replays_exactly_from_its_first_kept_row(tmp_path):
+    path = simulate(tmp_path / "ring.log", sysfs=False, config_overrides={"log_max_rows": 120})
+    header, rows = logfile.read_log(path)
+    assert header["first_tick"] > 0 and len(rows) == 120
+    r = replay.replay_log(path)
+    assert r.exact, r.diffs
+
+
+def test_the_firmware_log_from_the_in_memory_devices_replays_exactly(tmp_path):
+    r = replay.replay_log(simulate(tmp_path / "mem.log", sysfs=False))
+    assert r.exact, r.diffs
+
+
+def test_a_replay_that_differs_from_the_log_is_reported(sim_log, tmp_path, capsys):
+    header, rows = logfile.read_log(sim_log)
+    rows = rows.copy()
+    k = len(rows) // 2
+    rows[k, logfile.col("xt_th1")] += 1e-6          # as if the robot had computed otherwise
+    bad = write_raw(tmp_path / "tampered.log", header, rows)
+    code, out, err = run_main(capsys, bad, "--no-plots")
+    assert code == 1
+    assert "DIFFERS from the log: estimates x~ by up to 1e-06" in out
+    assert "first at row %d" % k in out
+
+
+# ------------------------------------------------------------------ other gains
+def test_other_gains_show_what_they_would_have_commanded(sim_log, tmp_path, capsys):
+    code, out, err = run_main(capsys, sim_log, "--gains", PAPER, "--out", tmp_path)
+    assert code == 0, err
+    assert "replays exactly" in out            # the logged gains are still found (gains/)
+    assert "what-if with %s" % PAPER in out
+    r = replay.replay_log(sim_log, gains_path=PAPER)
+    assert max(m for m, _ in r.other_u_diff.values()) > 0.1
+    # the raw readings are the log's; what the controller makes of them is not
+    raw = [logfile.col(n) for n in ("enc_r", "enc_l", "enc_2", "enc_3", "gyro_angle", "gyro_rate")]
+    assert np.array_equal(r.other[:, raw], r.rows[:, raw])
+    assert not np.allclose(r.other[:, logfile.col("u_r")], r.rows[:, logfile.col("u_r")])
+
+
+def test_the_logged_gains_are_found_by_their_hash_next_to_the_log(sim_log, tmp_path):
+    d = tmp_path / "logs" / "ev3dev.local"
+    d.mkdir(parents=True)
+    log = shutil.copy(sim_log, str(d / "tipbot-copy.log"))
+    header, _ = logfile.read_log(log)
+    fetched = d / ("gains-%s.json" % header["gains"]["sha256"][:16])     # as `make logs` names it
+    shutil.copy(PHYSICAL, str(fetched))
+    assert replay.replay_log(log).logged_gains_path == str(fetched)
+
+
+def test_unknown_logged_gains_are_asked_for(sim_log, tmp_path, capsys):
+    header, rows = logfile.read_log(sim_log)
+    header["gains"] = dict(header["gains"], sha256="f" * 64, path="/home/robot/tipbot/gains.json")
+    log = write_raw(tmp_path / "other.log", header, rows)
+    code, out, err = run_main(capsys, log, "--no-plots")
+    assert code == 2
+    assert "recorded with gains sha256 ffffffffffffffff" in err and "pass it with --gains FILE" in err
+    # other gains still show what they would have commanded
+    code, out, err = run_main(capsys, log, "--no-plots", "--gains", PAPER)
+    assert code == 0, err
+    assert "exact replay skipped" in out and "what-if with" in out
+
+
+def test_other_gains_with_another_period_are_refused(sim_log, tmp_path, capsys):
+    with open(PHYSICAL) as f:
+        doc = json.load(f)
+    doc["ts_s"] = 2 * doc["ts_s"]
+    other = tmp_path / "slow.json"
+    other.write_text(json.dumps(doc))
+    code, out, err = run_main(capsys, sim_log, "--no-plots", "--gains", other)
+    assert code == 2
+    assert "the log was sampled every 0.005 s" in err
+
+
+# ------------------------------------------------------------------ bad logs
+def _bytes(path):
+    with open(path, "rb") as f:
+        return f.read()
+
+
+@pytest.mark.parametrize("keep", ["nothing", "part of the preamble", "part of the header",
+                                  "part of the rows", "all but the checksum"])
+def test_a_truncated_log_is_refused(sim_log, tmp_path, capsys, keep):
+    data = _bytes(sim_log)
+    header_len = struct.unpack_from("<I", data, len(logfile.MAGIC) + 4)[0]
+    pre = len(logfile.MAGIC) + 20
+    n = {"nothing": 0, "part of the preamble": 12, "part of the header": pre + header_len // 2,
+         "part of the rows": (pre + header_len + len(data)) // 2, "all but the checksum": len(data) - 4}[keep]
+    path = tmp_path / "cut.log"
+    path.write_bytes(data[:n])
+    code, out, err = run_main(capsys, path, "--no-plots")
+    assert code == 2 and out == ""
+    assert err.startswith("replay: error: %s: truncated" % path), err
+
+
+@pytest.mark.parametrize("where", ["header", "rows"])
+def test_a_corrupted_log_is_refused(sim_log, tmp_path, capsys, where):
+    data = bytearray(_bytes(sim_log))
+    header_len = struct.unpack_from("<I", data, len(logfile.MAGIC) + 4)[0]
+    pre = len(logfile.MAGIC) + 20
+    i = pre + 10 if where == "header" else pre + header_len + 8 * 50 + 3
+    data[i] ^= 0x10
+    path = tmp_path / "bad.log"
+    path.write_bytes(bytes(data))
+    code, out, err = run_main(capsys, path, "--no-plots")
+    assert code == 2
+    assert "corrupted: CRC32" in err, err
+
+
+def test_a_file_that_is_not_a_log_is_refused(tmp_path, capsys):
+    path = tmp_path / "notes.log"
+    path.write_text("time,u\n0,1\n")
+    code, out, err = run_main(capsys, path, "--no-plots")
+    assert code == 2 and "not a tipbot log" in err
+    code, out, err = run_main(capsys, tmp_path / "absent.log", "--no-plots")
+    assert code == 2 and "no such log file" in err
+
+
+def test_a_log_of_another_format_version_is_refused(sim_log, tmp_path, capsys):
+    header, rows = logfile.read_log(sim_log)
+    path = write_raw(tmp_path / "v2.log", header, rows, version=logfile.FORMAT_VERSION + 1)
+    code, out, err = run_main(capsys, path, "--no-plots")
+    assert code == 2
+    assert "log format version %d is not supported" % (logfile.FORMAT_VERSION + 1) in err
+
+
+def test_a_log_with_columns_of_another_firmware_version_is_refused(sim_log, tmp_path, capsys):
+    header, rows = logfile.read_log(sim_log)
+    header["versions"] = dict(header["versions"], tipbot_fw="9.0.0")
+    columns = header["columns"] + [{"name": "motor_current_r", "unit": "A"}]
+    path = write_raw(tmp_path / "newer.log", header, np.hstack([rows, np.zeros((len(rows), 1))]),
+                     columns=columns)
+    code, out, err = run_main(capsys, path, "--no-plots")
+    assert code == 2
+    assert "incompatible log: written by tipbot_fw 9.0.0" in err and "unknown: motor_current_r" in err
+
+
+def test_a_log_whose_header_lacks_what_a_replay_needs_is_refused(sim_log, tmp_path, capsys):
+    header, rows = logfile.read_log(sim_log)
+    del header["calibration"]
+    path = write_raw(tmp_path / "old.log", header, rows)
+    code, out, err = run_main(capsys, path, "--no-plots")
+    assert code == 2
+    assert "incompatible log: its header lacks calibration" in err
+
+
+def test_the_hostsim_command_line_dispatches_replay(sim_log, capsys):
+    from hostsim.__main__ import main
+    assert main(["replay", sim_log, "--no-plots"]) == 0
+    assert "replays exactly" in capsys.readouterr().out
