@@ -23,7 +23,6 @@ Plots (PNG) of logged vs replayed (and other-gains) inputs and estimates go to -
 (truncated, corrupted, incompatible version, wrong gains): the message says which and why.
 """
 import argparse
-import copy
 import glob
 import hashlib
 import os
@@ -186,15 +185,11 @@ def max_abs_diff(a, b, cols):
 def replay_rows(header, rows, gains, as_logged=True):
     """Rows recomputed by the firmware's replay with ``gains``.
 
-    as_logged=False replays with gains that are not the log's (a what-if): tipbot_fw.replay
-    refuses a gains hash other than the log's, so the other gains are presented under the
-    log's hash; everything else (config, gyro bias, encoder zeros, start) is the log's.
+    as_logged=False replays with gains that are not the log's (a what-if); everything else
+    (config, gyro bias, encoder zeros, start) is the log's.
     """
-    if not as_logged:
-        gains = copy.copy(gains)
-        gains.sha256 = header["gains"]["sha256"]
     try:
-        return fw_replay.replay(header, rows, gains)
+        return fw_replay.replay(header, rows, gains, check_gains=as_logged)
     except (KeyError, TypeError, IndexError, AttributeError) as e:
         written_by = header.get("versions", {}).get("tipbot_fw", "?")
         if written_by == tipbot_fw.__version__:

@@ -116,6 +116,16 @@ def test_sigterm(tmp_path):
     assert signal.getsignal(signal.SIGTERM) == before
 
 
+def test_sighup_from_a_dropped_ssh_session_stops_the_motors(tmp_path):
+    dev = MemoryDevices()
+    before = signal.getsignal(signal.SIGHUP)
+    clock = VirtualClock(on_sleep=TickCounter(dev, lambda n: n == 30 and os.kill(os.getpid(), signal.SIGHUP)))
+    code, header, path, _ = session(tmp_path, dev, clock)
+    h, rows = assert_stopped_and_logged(dev, path, 'sigterm', 143, header)
+    assert 'SIGHUP' in h['stop_message']
+    assert signal.getsignal(signal.SIGHUP) == before
+
+
 def test_keyboard_interrupt(tmp_path):
     dev = MemoryDevices()
 

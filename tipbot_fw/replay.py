@@ -10,22 +10,26 @@ from tipbot_fw import logfile
 from tipbot_fw.core import Core
 
 
-def core_from_header(header, gains):
-    """A Core configured exactly as the logged run; gains must be the logged gains file."""
-    if header['gains']['sha256'] != gains.sha256:
+def core_from_header(header, gains, check_gains=True):
+    """A Core configured exactly as the logged run.
+
+    check_gains: refuse gains other than the logged ones (False: replay the readings through
+    other gains, to see what they would have commanded).
+    """
+    if check_gains and header['gains']['sha256'] != gains.sha256:
         raise ValueError('gains {} (sha256 {}) are not the ones of the log (sha256 {})'.format(
             gains.path, gains.sha256, header['gains']['sha256']))
     return Core(gains, header['config'], header['calibration']['gyro_bias_dps'],
                 header['counts_per_rot'])
 
 
-def replay(header, rows, gains):
+def replay(header, rows, gains, check_gains=True):
     """-> recomputed rows (same shape as rows; time columns copied from the log).
 
     From tick 0 (Core.start) if the log kept it, else restarted from the first kept row (which
     is then copied, not recomputed).
     """
-    core = core_from_header(header, gains)
+    core = core_from_header(header, gains, check_gains)
     out = np.array(rows, dtype=float)
     one = logfile.LogBuffer(1)
     overrun = logfile.FLAG_BITS['overrun']

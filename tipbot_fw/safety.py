@@ -79,7 +79,10 @@ def classify(exc):
 
 
 class SignalGuard(object):
-    """SIGTERM -> Terminated, SIGINT -> KeyboardInterrupt, each raised at most ONCE.
+    """SIGTERM and SIGHUP -> Terminated, SIGINT -> KeyboardInterrupt, each raised at most ONCE.
+
+    SIGHUP: a run started over ssh gets it when the connection drops; its default action
+    would kill the process with the motors still running at their last duty.
 
     After the first signal (or disarm()), further signals are only counted: a second Ctrl-C
     cannot interrupt the motor stop and log write that the first one started.
@@ -97,12 +100,15 @@ class SignalGuard(object):
         self.armed = False
         if signum == signal.SIGTERM:
             raise Terminated('terminated by SIGTERM')
+        if signum == getattr(signal, 'SIGHUP', None):
+            raise Terminated('terminated by SIGHUP (the terminal or ssh connection went away)')
         raise KeyboardInterrupt()
 
     def install(self):
         try:
-            for sig in (signal.SIGTERM, signal.SIGINT):
-                self._previous[sig] = signal.signal(sig, self._handler)
+            for sig in (signal.SIGTERM, signal.SIGINT, getattr(signal, 'SIGHUP', None)):
+                if sig is not None:
+                    self._previous[sig] = signal.signal(sig, self._handler)
         except ValueError:
             pass    # not the main thread: Python delivers signals only there anyway
         self.armed = True
