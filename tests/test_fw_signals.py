@@ -66,11 +66,26 @@ def test_filtered_differentiation_converges_to_the_slope_with_the_configured_lag
 
 
 def test_bias_tracking_has_the_configured_time_constant():
-    c = chain(bias=0.0, gyro_bias_time_constant_s=1.0)
+    c = chain(bias=0.0, gyro_bias_time_constant_s=1.0, gyro_bias_quiet_dps=5.0)
     c.start((0, 0, 0, 0), (0, 2))
     for _ in range(199):                           # 1 s of ticks after the first
         c.update((0, 0, 0, 0), (0, 2))
     assert c.bias_dps == pytest.approx(2 * (1 - math.exp(-1)), rel=1e-3)
+
+
+def test_bias_tracking_ignores_real_rotation():
+    """A rotation (|rate - bias| beyond gyro_bias_quiet_dps) is motion, not bias: the tracker
+    must not learn it, else th1 is high-passed and the robot drifts back to its start lean."""
+    c = chain(bias=0.5, gyro_bias_time_constant_s=1.0, gyro_bias_quiet_dps=2.0)
+    c.start((0, 0, 0, 0), (0, 0))
+    for _ in range(200):                           # 1 s turning at 20 deg/s
+        c.update((0, 0, 0, 0), (0, 20))
+    b = 0.5 + (0.0 - 0.5) * (1 - math.exp(-1 / 200.0))     # only the start's quiet sample counted
+    assert c.bias_dps == pytest.approx(b, rel=1e-12)
+    assert c.y[2] == pytest.approx(math.radians((20 - b) * 200 * TS), rel=1e-9)
+    for _ in range(200):                           # then still: the quiet samples are learned
+        c.update((0, 0, 0, 0), (0, 1))
+    assert 0.5 < c.bias_dps < 1.0
 
 
 def test_restore_continues_exactly():

@@ -22,6 +22,8 @@ Every field is validated; errors name the file and the dotted field path. Fields
   gyro_calibration.max_rate_spread_dps         max - min rate allowed in that window
   gyro_calibration.max_angle_change_deg        sensor angle change allowed in that window
   gyro_bias_time_constant_s                    slow bias tracking while running; null = off
+  gyro_bias_quiet_dps                          the tracking learns only from samples whose
+                                               corrected rate is within +- this (the robot at rest)
   battery_period_s                             battery re-read period (outside the ticks)
   log_max_rows                                 log buffer rows (a ring: the newest are kept)
   realtime_priority                            SCHED_FIFO priority to request, 0 = don't
@@ -120,6 +122,7 @@ SPEC = {
     'gyro_calibration.max_rate_spread_dps': _number(0, 100, lo_open=False),
     'gyro_calibration.max_angle_change_deg': _number(0, 90, lo_open=False),
     'gyro_bias_time_constant_s': _number(0, 3600, allow_null=True),
+    'gyro_bias_quiet_dps': _number(0, 100),
     'battery_period_s': _number(0, 60),
     'log_max_rows': _number(1, 1000000, lo_open=False, integer=True),
     'realtime_priority': _number(0, 99, lo_open=False, integer=True),
