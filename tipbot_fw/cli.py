@@ -1,9 +1,9 @@
-"""Command line: python3 -m tipbot_fw {run,check,calibrate,bench} ... (exit codes: tipbot_fw.safety)."""
+"""Command line: python3 -m tipbot_fw {run,check,calibrate,bench,identify} ... (exit codes: tipbot_fw.safety)."""
 import argparse
 import sys
 import time
 
-from tipbot_fw import safety
+from tipbot_fw import identify, safety
 from tipbot_fw.bench import brick_bench
 from tipbot_fw.calibration import calibrate_gyro
 from tipbot_fw.clock import MonotonicClock
@@ -54,6 +54,11 @@ def _parser():
     sp.add_argument('--gains', metavar='FILE', required=True)
     sp.add_argument('--ticks', metavar='N', type=int, default=2000)
     common(sp)
+    sp = sub.add_parser('identify', help='drive ONE motor, record its run-up and run-down for the '
+                        'host\'s motor identification (python -m hostsim identify LOG)',
+                        description=identify.__doc__.split('\n\n')[0])
+    identify.add_arguments(sp)
+    common(sp)
     return p
 
 
@@ -72,6 +77,8 @@ def main(argv=None):
     if args.command is None:
         _parser().print_help()
         return safety.EXIT_INVALID
+    if args.command == 'identify':   # one motor, not the robot's full set of devices
+        return identify.main_identify(args, say=_say)
     try:
         config = load_config(args.config)
         gains = load_gains(args.gains) if getattr(args, 'gains', None) else None
