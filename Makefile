@@ -10,8 +10,9 @@ REQ      := requirements-host.txt
 VENV_KEY := $(shell { cat $(REQ); $(PYTHON) -c 'import sys; print(sys.version)'; } 2>/dev/null | sha256sum | cut -c1-16)
 STAMP    := $(VENV)/.tipbot-venv-$(VENV_KEY)
 
-# make gains TS=0.010 VARIANT=paper
+# make gains TS=0.010 VARIANT=paper PARAMS=identified.json
 TS       ?=
+PARAMS   ?=
 VARIANT  ?=
 # make test PYTEST_ARGS='-k gains -x'
 PYTEST_ARGS ?=
@@ -74,7 +75,7 @@ test: venv
 	exit $$rc
 
 gains: venv
-	$(VPY) -m hostsim.gains $(if $(TS),--ts $(TS)) $(if $(VARIANT),--variant $(VARIANT))
+	$(VPY) -m hostsim.gains $(if $(TS),--ts $(TS)) $(if $(VARIANT),--variant $(VARIANT)) $(if $(PARAMS),--params $(PARAMS))
 
 paper-check: venv
 	$(VPY) -m hostsim.paper_check

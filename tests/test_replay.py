@@ -199,6 +199,15 @@ def test_a_log_of_another_format_version_is_refused(sim_log, tmp_path, capsys):
     assert "log format version %d is not supported" % (logfile.FORMAT_VERSION + 1) in err
 
 
+def test_an_identify_log_is_refused_with_where_to_take_it(tmp_path, capsys):
+    from tipbot_fw import identify
+    path = str(tmp_path / "motor.log")
+    identify.write_identify_log(path, {"port": "outA"}, [0.0] * (3 * identify.N_COLUMNS))
+    code, out, err = run_main(capsys, path, "--no-plots")
+    assert code == 2
+    assert "'identify' log, not a balance run" in err and "python -m hostsim identify" in err
+
+
 def test_a_log_with_columns_of_another_firmware_version_is_refused(sim_log, tmp_path, capsys):
     header, rows = logfile.read_log(sim_log)
     header["versions"] = dict(header["versions"], tipbot_fw="9.0.0")

@@ -39,12 +39,12 @@ Python 3.5 + the standard library (python-ev3dev2 at start-up only).
 """
 import argparse
 import array
-import json
 import os
 import sys
 import time
 import traceback
-import zlib
+
+import numpy as np
 
 import tipbot_fw
 from tipbot_fw import ev3io, logfile
@@ -327,34 +327,16 @@ class Recorder(object):
 
 
 def write_identify_log(path, header, rows):
-    """Write an identify log: the container of docs/log-format.md (magic, counts, JSON header,
-    float64 rows, CRC-32; written to path + '.tmp' and renamed) with COLUMNS as its columns
-    and ``kind: "identify"`` in its header. rows: a flat sequence of doubles, row-major.
+    """Write an identify log: the run log's container (docs/log-format.md) with COLUMNS as its
+    columns and ``kind: "identify"`` in its header. rows: a flat sequence of doubles, row-major.
     tipbot_fw.logfile.read_log reads it."""
     header = dict(header)
     header['kind'] = KIND
-    header['columns'] = [{'name': n, 'unit': u} for n, u in COLUMNS]
-    header['format_version'] = logfile.FORMAT_VERSION
-    body = array.array('d', rows)
-    if len(body) % N_COLUMNS:
+    body = np.frombuffer(array.array('d', rows).tobytes(), dtype='=f8')
+    if body.size % N_COLUMNS:
         raise ValueError('identify rows: {} values is not a whole number of {}-column rows'.format(
-            len(body), N_COLUMNS))
-    if sys.byteorder != 'little':
-        body.byteswap()
-    data = body.tobytes()
-    text = json.dumps(header, sort_keys=True).encode('utf-8')
-    counts = logfile._COUNTS.pack(logfile.FORMAT_VERSION, len(text), N_COLUMNS, len(body) // N_COLUMNS)
-    crc = zlib.crc32(data, zlib.crc32(text, zlib.crc32(counts)))
-    tmp = path + '.tmp'
-    with open(tmp, 'wb') as f:
-        f.write(logfile.MAGIC)
-        f.write(counts)
-        f.write(text)
-        f.write(data)
-        f.write(logfile._CRC.pack(crc & 0xffffffff))
-        f.flush()
-        os.fsync(f.fileno())
-    os.rename(tmp, path)
+            body.size, N_COLUMNS))
+    logfile.write_log(path, header, body.reshape(-1, N_COLUMNS), columns=COLUMNS)
 
 
 def _say(msg):

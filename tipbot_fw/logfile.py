@@ -143,16 +143,19 @@ class LogBuffer(object):
         return self.first_tick(), rows
 
 
-def columns_header():
-    return [{'name': n, 'unit': u} for n, u in COLUMNS]
+def columns_header(columns=COLUMNS):
+    return [{'name': n, 'unit': u} for n, u in columns]
 
 
 class LogFormatError(ValueError):
     """The file is not a complete, intact tipbot log; the message says what is wrong."""
 
 
-def write_log(path, header, rows, nrows=None):
+def write_log(path, header, rows, nrows=None, columns=COLUMNS):
     """Write header (a JSON-able dict; 'columns' is added) and rows to path.
+
+    columns: (name, unit) pairs; another list than the run log's COLUMNS makes another kind
+    of log in the same container (tipbot_fw.identify), which the header must say.
 
     rows: an n x N_COLUMNS array; or, with nrows, an iterable of such blocks with nrows rows in
     all (LogBuffer.file_blocks: on the brick a full ring is then written with little memory
@@ -161,17 +164,17 @@ def write_log(path, header, rows, nrows=None):
     """
     if nrows is None:
         rows = np.asarray(rows)
-        if rows.ndim != 2 or rows.shape[1] != N_COLUMNS:
-            raise ValueError('log rows must be n x {}, got shape {}'.format(N_COLUMNS, rows.shape))
+        if rows.ndim != 2 or rows.shape[1] != len(columns):
+            raise ValueError('log rows must be n x {}, got shape {}'.format(len(columns), rows.shape))
         nrows = rows.shape[0]
         blocks = [rows]
     else:
         blocks = rows
     header = dict(header)
-    header['columns'] = columns_header()
+    header['columns'] = columns_header(columns)
     header['format_version'] = FORMAT_VERSION
     text = json.dumps(header, sort_keys=True).encode('utf-8')
-    counts = _COUNTS.pack(FORMAT_VERSION, len(text), N_COLUMNS, nrows)
+    counts = _COUNTS.pack(FORMAT_VERSION, len(text), len(columns), nrows)
     crc = zlib.crc32(text, zlib.crc32(counts))
     written = 0
     tmp = path + '.tmp'

@@ -5,7 +5,8 @@ Exit codes of `python3 -m tipbot_fw` (also in README/cli help):
   1   unexpected error (a bug): motors stopped, log written, traceback printed
   2   invalid command line, config or gains: refused to start, devices not opened
   3   devices missing or with the wrong driver: refused to start, motors untouched
-  4   refused to start: battery below limits.min_battery_v, or the gyro moved during calibration
+  4   refused to start: battery below limits.min_battery_v, the gyro moved during calibration,
+      or (identify) the owner did not confirm that the motor is free to turn
   5   a device read or write failed during the run
   6   fall (|th1| beyond limits.th1_rad) or a joint beyond its limit: stopped in that tick
   7   limits.max_consecutive_overruns late ticks in a row
