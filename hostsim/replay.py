@@ -63,7 +63,7 @@ def load_log(path):
     except OSError as e:
         raise ReplayError("%s: cannot read: %s" % (path, e))
     if header.get("kind", "run") != "run":
-        raise ReplayError("%s: a %r log, not a balance run: analyse it with `python -m hostsim %s`"
+        raise ReplayError("%s: a log of kind %r, not a balance run: analyse it with `python -m hostsim %s`"
                           % (path, header["kind"], header["kind"]))
     written_by = header.get("versions", {}).get("tipbot_fw", "an unknown version")
     names = [c.get("name") if isinstance(c, dict) else c for c in header.get("columns", [])]

@@ -161,7 +161,7 @@ def test_other_files_are_refused(tmp_path):
         I.load_log(bad)
     # the balance-log replay refuses an identify log instead of misreading it
     from hostsim import replay
-    with pytest.raises(replay.ReplayError, match="incompatible log"):
+    with pytest.raises(replay.ReplayError, match="kind 'identify', not a balance run"):
         replay.load_log(good)
 
 

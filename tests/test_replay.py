@@ -205,7 +205,7 @@ def test_an_identify_log_is_refused_with_where_to_take_it(tmp_path, capsys):
     identify.write_identify_log(path, {"port": "outA"}, [0.0] * (3 * identify.N_COLUMNS))
     code, out, err = run_main(capsys, path, "--no-plots")
     assert code == 2
-    assert "'identify' log, not a balance run" in err and "python -m hostsim identify" in err
+    assert "a log of kind 'identify', not a balance run" in err and "python -m hostsim identify" in err
 
 
 def test_a_log_with_columns_of_another_firmware_version_is_refused(sim_log, tmp_path, capsys):
