@@ -1,16 +1,24 @@
-"""Nonlinear plant: the robot's equations of motion integrated with fixed-step RK4.
+"""Nonlinear plant: the robot's equations of motion integrated with a fixed step.
 
 The motor voltages are held between calls (zero-order hold, as the EV3's PWM does between
 duty writes); the step is 1 ms by default, five per 5 ms control tick. A generalized force
 can be added for pushes and other external disturbances.
+
+Integration: classic RK4 (``method="rk4"``, the default and the reference) or Heun's
+second-order method (``"heun"``, half the derivative evaluations; its error against RK4 at
+1 ms is bounded by tests/test_sim_plant.py; ``python -m hostsim.bench`` times both). Without an
+external force the derivative comes from hostsim.fastdyn, which gives bit-for-bit the
+numbers of the model's mass_matrix_forcing + solve_spd5 below at about half the cost.
 """
 import math
 
 import numpy as np
 
+from hostsim import fastdyn
 from hostsim.model import RobotModel, state_scale_to_si
 
 DEFAULT_DT_S = 1e-3
+METHODS = ("rk4", "heun")
 
 
 def solve_spd5(m, f):
@@ -53,11 +61,15 @@ def solve_spd5(m, f):
 class Plant:
     """The simulated robot. ``x`` is in the model variant's units, ``x_si`` in SI."""
 
-    def __init__(self, model, x0=None, dt_s=DEFAULT_DT_S):
+    def __init__(self, model, x0=None, dt_s=DEFAULT_DT_S, method="rk4"):
         if not isinstance(model, RobotModel):
             raise TypeError("Plant needs a hostsim.model.RobotModel")
         if not dt_s > 0:
             raise ValueError("integration step must be positive, got %r" % dt_s)
+        if method not in METHODS:
+            raise ValueError("integration method must be one of %s, got %r" % (", ".join(METHODS), method))
+        self.method = method
+        self._fast, self._pre = fastdyn.compile_model(model)
         self.model = model
         self.dt_s = float(dt_s)
         self.t_s = 0.0
@@ -88,15 +100,28 @@ class Plant:
         f_ext = None if f_ext is None else [float(v) for v in f_ext]
         if not duration_s > 0:
             raise ValueError("duration must be positive, got %r" % duration_s)
+        if f_ext is None:
+            pre = self._pre
+            fast = self._fast
+
+            def deriv(x, u, _):
+                return fast(x, u, pre)
+        else:
+            deriv = self._deriv
         x = [float(v) for v in self.x]
         remaining = float(duration_s)
+        heun = self.method == "heun"
         while remaining > 1e-12:
             h = min(self.dt_s, remaining)
-            k1 = self._deriv(x, u, f_ext)
-            k2 = self._deriv([a + 0.5 * h * b for a, b in zip(x, k1)], u, f_ext)
-            k3 = self._deriv([a + 0.5 * h * b for a, b in zip(x, k2)], u, f_ext)
-            k4 = self._deriv([a + h * b for a, b in zip(x, k3)], u, f_ext)
-            x = [a + (h / 6.0) * (b + 2.0 * c + 2.0 * d + e) for a, b, c, d, e in zip(x, k1, k2, k3, k4)]
+            k1 = deriv(x, u, f_ext)
+            if heun:
+                k2 = deriv([a + h * b for a, b in zip(x, k1)], u, f_ext)
+                x = [a + (0.5 * h) * (b + c) for a, b, c in zip(x, k1, k2)]
+            else:
+                k2 = deriv([a + 0.5 * h * b for a, b in zip(x, k1)], u, f_ext)
+                k3 = deriv([a + 0.5 * h * b for a, b in zip(x, k2)], u, f_ext)
+                k4 = deriv([a + h * b for a, b in zip(x, k3)], u, f_ext)
+                x = [a + (h / 6.0) * (b + 2.0 * c + 2.0 * d + e) for a, b, c, d, e in zip(x, k1, k2, k3, k4)]
             remaining -= h
         self.x = np.array(x)
         self.t_s += duration_s

@@ -1,0 +1,315 @@
+"""Firmware in the loop: the unmodified firmware balancing the simulated robot, in lock-step.
+
+The firmware's session (calibration, loop, safety, log) runs as on the brick, with a
+``VirtualClock``: whenever it sleeps, the simulated world catches up to the wake-up time.
+The world is the nonlinear plant (hostsim.plant), the sensor models (hostsim.sensors) and,
+with ``sysfs=True``, the fake EV3 tree read and written by the firmware's real device layer
+(tipbot_fw.ev3io); with ``sysfs=False`` an in-memory device (faster, for Monte Carlo).
+
+Timing model, per tick of period ts: the firmware reads the sensors at the tick's start,
+its duties take effect ``io_latency_s`` later (the rest of the reads and the compute on the
+brick), the motor voltage is duty x battery voltage, held until the next write (zero-order
+hold), plus the scenario's input disturbance. ``extra_delay_ticks`` delays the voltages by
+whole ticks more; ``jitter_s`` makes each wake-up late by |N(0, jitter_s)| (rounded to the
+plant's 1 ms step). The plant integrates with the scenario's ``plant_method`` at 1 kHz, one
+``advance`` per piece of constant input (hostsim.plant).
+
+Start: like a person holding the robot, the world keeps the plant at the scenario's start
+pose while the firmware calibrates the gyro (about 1 s, with the scenario's gyro bias and
+noise), and releases it when the control loop starts; t = 0 in the results is that
+release. The firmware is told the start pose (config ``start_pose_rad``). What differs from
+the linear simulation, as on the robot:
+
+- the estimate starts from the first measurement (x~_0 = y_0), not from a given x~(0);
+- the wheel-position origin is where the wheels stand: the firmware's signal chain sets
+  d = R_w (phi_rel + th1) with the relative wheel angle phi_rel counted from its first
+  reading, so it starts at d = R_w th1(0) whatever the scenario's d(0). It regulates its d to
+  0, i.e. the plant's d to ``d_origin_m`` = d(0) - R_w th1(0). Results (x, and the
+  firmware's estimates, shifted by that offset) are in the scenario's frame; metrics measure
+  the final displacement from d_origin_m.
+"""
+import math
+import os
+import tempfile
+
+import numpy as np
+
+from hostsim.model import RobotModel, state_scale_to_si
+from hostsim.params import load_params
+from hostsim.plant import Plant
+from hostsim.scenario import disturbance_at
+from hostsim.sensors import SensorModel
+from tipbot_fw import config as fw_config
+from tipbot_fw import logfile
+from tipbot_fw.clock import VirtualClock
+from tipbot_fw.devices import MemoryDevices
+from tipbot_fw.gains import gains_from_dict, load_gains
+from tipbot_fw.session import run_session
+
+ROLES = ("right_wheel", "left_wheel", "joint2", "joint3")
+MODEL_INPUT = (0, 1, 3, 4)   # u index of each role
+DEFAULT_IO_LATENCY_S = 0.002
+PLANT_DT_S = 0.001
+_EPS_S = 1e-9
+
+
+def scaled_params(scale, params=None):
+    """Parameters with the scenario's multipliers applied."""
+    p = dict(load_params() if params is None else params)
+    for name, factor in scale.items():
+        p[name] = p[name] * factor
+    return p
+
+
+def firmware_config(sc, rw_m, overrides=None):
+    """The firmware's configuration for a scenario: defaults + what the scenario implies."""
+    doc = {
+        "start_pose_rad": {"th1": sc["x0_si"][2], "th2": sc["x0_si"][3], "th3": sc["x0_si"][4]},
+        "gyro_sign": int(sc["sensors"]["gyro_sign"]),
+        "wheel_radius_m": rw_m,
+        "realtime_priority": 0,
+    }
+    if overrides:
+        doc.update(overrides)
+    return fw_config.config_from_overrides(doc, "<scenario %s>" % sc["name"])
+
+
+def calibration_end_s(config, ts_s):
+    """When the session's gyro calibration takes its last sample (see tipbot_fw.calibration)."""
+    n = max(2, int(round(config["gyro_calibration"]["duration_s"] / ts_s)))
+    return (n - 1) * ts_s
+
+
+class World:
+    """Plant + sensors (+ fake EV3), advanced by the firmware's clock."""
+
+    def __init__(self, sc, plant, sensors, ts_s, t_release_s, fake=None, io_latency_s=DEFAULT_IO_LATENCY_S,
+                 rng=None):
+        self.sc = sc
+        self.plant = plant
+        self.sensors = sensors
+        self.ts_s = ts_s
+        self.t_release_s = t_release_s
+        self.fake = fake
+        self.io_latency_s = io_latency_s
+        self.rng = rng
+        self.devices = None                     # MemoryDevices, when not on the fake
+        self.ports = None                       # fake EV3 motor ports, in ROLES order
+        self.battery_v = sc["sensors"]["battery_v"]
+        self.pushes = sorted((t_release_s + p["t_s"], p["th1_dot_rad_s"]) for p in sc["pushes"])
+        edges = {d[k] for d in sc["disturbances"] for k in ("t_start_s", "t_end_s")}
+        self.breaks = sorted({t_release_s + t for t in edges} | {t for t, _ in self.pushes})
+        self.delay = [np.zeros(5)] * sc["extra_delay_ticks"]
+        self.v_prev = np.zeros(5)
+        self.readings = None
+        self.log_t, self.log_x, self.log_u, self.log_w = [], [], [], []
+        self.released = False
+        self.clock = None
+        self.publish(0.0)
+
+    # -- what the firmware sees
+    def publish(self, t_s):
+        x = self.plant.x_si
+        enc, gyro, volts = self.sensors.read(x, t_s)
+        self.readings = (enc, gyro)
+        if self.fake is not None:
+            self.fake.poll()   # client writes (mode, commands) take effect before the next read
+            self.fake.set_readings(enc, gyro, volts)
+
+    def read(self):
+        """MemoryDevices source: the readings published at the current time."""
+        return self.readings
+
+    # -- what the firmware commands
+    def duties(self):
+        if self.fake is not None:
+            states = self.fake.poll()
+            return [states[p].duty if states[p].running else 0 for p in self.ports]
+        return self.devices.duties
+
+    def motor_volts(self):
+        v = np.zeros(5)
+        signs = self.sensors.motor_signs
+        scale = self.battery_v / 100.0
+        for i, d in enumerate(self.duties()):
+            v[MODEL_INPUT[i]] = signs[i] * d * scale
+        return v
+
+    # -- time
+    def on_sleep(self, t_from, t_to):
+        if t_to <= self.t_release_s + _EPS_S:          # held still while calibrating
+            self.publish(t_to)
+            return
+        t_from = max(t_from, self.t_release_s)
+        if not self.released:
+            self.released = True
+            self._record(t_from)
+        if self.sc["jitter_s"] > 0:
+            late = abs(self.rng.normal(0.0, self.sc["jitter_s"]))
+            t_to = t_to + round(late / PLANT_DT_S) * PLANT_DT_S
+            self.clock.t = t_to
+        self.delay.append(self.motor_volts())
+        v_new = self.delay.pop(0)
+        t_switch = min(t_from + self.io_latency_s, t_to)
+        self._integrate(t_from, t_switch, self.v_prev)
+        self._integrate(t_switch, t_to, v_new)
+        self.v_prev = v_new
+        self.log_u.append(v_new)
+        self.log_w.append(self._w(t_switch, t_to))
+        self._record(t_to)
+        self.publish(t_to)
+
+    def _record(self, t):
+        self.log_t.append(t - self.t_release_s)
+        self.log_x.append(self.plant.x_si)
+
+    def _w(self, t0, t1):
+        # The disturbance over a piece without edges: sampled mid-piece, so rounding of the
+        # absolute times cannot pick the neighbouring value.
+        return np.array(disturbance_at(self.sc, 0.5 * (t0 + t1) - self.t_release_s))
+
+    def _integrate(self, t0, t1, volts):
+        while t1 - t0 > 1e-12:
+            while self.pushes and self.pushes[0][0] <= t0 + _EPS_S:
+                self.plant.x[7] += self.pushes.pop(0)[1]
+            t_end = t1
+            for b in self.breaks:
+                if t0 + _EPS_S < b < t_end - _EPS_S:
+                    t_end = b
+                    break
+            self.plant.advance(volts + self._w(t0, t_end), t_end - t0)
+            t0 = t_end
+
+
+def pd_gains_document(doc, k_pd_file):
+    """A gains document whose law is the PD baseline: K = K_pd (file units), K_w = 0.
+
+    The firmware has one control law, u = -K x~ - K_w w^; with this document it applies the
+    PD to its estimate x~, which follows y within a few ticks (detector poles at 0.2).
+    """
+    out = dict(doc)
+    k = np.asarray(k_pd_file, dtype=float)
+    out["K"] = k.tolist()
+    out["K_w"] = np.zeros((5, 5)).tolist()
+    a, b = np.array(doc["A"]), np.array(doc["B"])
+    out["closed_loop_spectral_radius"] = float(np.max(np.abs(np.linalg.eigvals(a - b @ k))))
+    out["generator"] = doc["generator"] + " + hostsim.pd baseline"
+    return out
+
+
+def run_firmware(sc, gains_path=None, gains_doc=None, sysfs=True, log_path=None, keep_rows=True, params=None,
+                 config_overrides=None):
+    """Run a scenario with the firmware in the loop.
+
+    gains_doc (a parsed gains document) replaces the file at gains_path / sc["gains"].
+    keep_rows: read the firmware's log back for its estimates (a temporary log unless
+    log_path is given); without it only the plant's side is returned.
+
+    Returns a dict: t_s (tick times from the release), x (plant state at the ticks, SI), u
+    (the motors' volts over each tick, from the duties), w (the disturbance added to them),
+    d_origin_m (see the module docstring), exit_code, stop_reason, completed, header (the
+    firmware log's), and with keep_rows: xhat, w_hat, y (the firmware's, shifted into the
+    scenario's frame), u_cmd (the inputs the firmware applied), u_unsat (before saturation).
+    """
+    gains_path = gains_path or sc["gains"]
+    rng = np.random.default_rng(sc["seed"])
+    nominal = load_params() if params is None else params
+    p = scaled_params(sc["param_scale"], nominal)
+    model = RobotModel(sc["plant_variant"], p)
+    to_model = 1.0 / np.diag(state_scale_to_si(model.variant))
+    plant = Plant(model, np.array(sc["x0_si"]) * to_model, dt_s=PLANT_DT_S, method=sc["plant_method"])
+    if gains_doc is not None:
+        gains = gains_from_dict(gains_doc, "<%s gains for %s>" % (gains_doc["model_variant"], sc["name"]))
+    else:
+        gains = load_gains(gains_path)
+    config = firmware_config(sc, nominal["rw_m"], config_overrides)
+    s = sc["sensors"]
+    signs = tuple(config["polarity"][r] for r in ROLES)
+    sensors = SensorModel(p["rw_m"], motor_signs=signs, gyro_sign=int(s["gyro_sign"]),
+                          gyro_bias_dps=s["gyro_bias_dps"], gyro_noise_dps=s["gyro_noise_dps"], rng=rng,
+                          battery_v=s["battery_v"])
+    t_release = calibration_end_s(config, gains.ts_s)
+    fake = None
+    if sysfs:
+        from hostsim.fake_ev3 import FakeEV3
+        from tipbot_fw.ev3io import Ev3Devices
+        fake = FakeEV3(battery_v=s["battery_v"])
+    world = World(sc, plant, sensors, gains.ts_s, t_release, fake=fake, io_latency_s=sc["io_latency_s"], rng=rng)
+    clock = VirtualClock(on_sleep=world.on_sleep)
+    world.clock = clock
+    tmp = None
+    if keep_rows and log_path is None:
+        tmp = tempfile.TemporaryDirectory(prefix="tipbot-fil-")
+        log_path = os.path.join(tmp.name, "run.log")
+    try:
+        if sysfs:
+            world.ports = tuple(config["ports"][r] for r in ROLES)
+            devices = Ev3Devices(config, sysfs_root=fake.sysfs_root, io=fake.io)
+        else:
+            devices = MemoryDevices(source=world.read, battery_v=lambda: world.battery_v)
+            world.devices = devices
+        try:
+            code, header = run_session(devices, gains, config, clock, log_path=log_path,
+                                       duration_s=sc["duration_s"], say=lambda msg: None)
+        finally:
+            devices.close()
+        rows = logfile.read_log(log_path)[1] if keep_rows and os.path.exists(log_path) else None
+    finally:
+        if fake is not None:
+            fake.close()
+        if tmp is not None:
+            tmp.cleanup()
+    if not world.released:                      # stopped at its first tick
+        world._record(t_release)
+    rw = config["wheel_radius_m"]
+    x0 = sc["x0_si"]
+    d_origin = np.array([x0[0] - rw * x0[2], x0[1] - rw * x0[2]])
+    out = _world_result(world, sc, d_origin)
+    out.update(exit_code=code, stop_reason=header.get("stop_reason"), header=header,
+               completed=code == 0 and header.get("stop_reason") == "completed")
+    if rows is not None:
+        out.update(_firmware_side(rows, gains, d_origin, len(out["t_s"])))
+    return out
+
+
+def _world_result(world, sc, d_origin):
+    n = len(world.log_t)
+    u = np.zeros((n, 5))
+    w = np.zeros((n, 5))
+    m = len(world.log_u)
+    if m:
+        # log_u[k] is what the plant got over tick k; the last tick has none: repeat.
+        u[:m], w[:m] = world.log_u[:n], world.log_w[:n]
+        u[m:], w[m:] = world.log_u[-1], world.log_w[-1]
+    return dict(t_s=np.array(world.log_t), x=np.array(world.log_x).reshape(n, 10), u=u, w=w,
+                d_origin_m=d_origin)
+
+
+def _firmware_side(rows, gains, d_origin, n):
+    """The firmware's own view from its log rows (by column name), tick k <-> plant sample k."""
+    rows = rows[:n]
+    names = logfile.COLUMN_NAMES
+
+    def block(first, width):
+        i = names.index(first)
+        return rows[:, i:i + width]
+    shift = np.zeros(10)
+    shift[:2] = d_origin
+    y = block("y_d_r", 10) + shift
+    xhat = block("xt_d_r", 10) + shift
+    w_hat = block("w_r", 5)
+    u_cmd = block("u_r", 5)
+    if "u_cmd_r" in names:
+        u_unsat = block("u_cmd_r", 5)
+    else:
+        # Row k holds x~_k and w^_{k-1}, the two terms of u_k.
+        u_unsat = -(block("xt_d_r", 10) @ gains.K.T) - (w_hat @ gains.K_w.T)
+    if len(rows) < n:
+        pad = n - len(rows)
+        y, xhat, w_hat, u_cmd, u_unsat = (np.vstack([a, np.full((pad, a.shape[1]), np.nan)])
+                                          for a in (y, xhat, w_hat, u_cmd, u_unsat))
+    return dict(y=y, xhat=xhat, w_hat=w_hat, u_cmd=u_cmd, u_unsat=u_unsat)
+
+
+def upright(x_si, limit_rad=math.radians(30)):
+    return bool(np.all(np.abs(x_si[:, 2]) < limit_rad))

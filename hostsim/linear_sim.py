@@ -1,0 +1,177 @@
+"""The paper's simulation: the detector and the controller on the linear or nonlinear model.
+
+Linear: plant x_{k+1} = A x_k + B (u_k + w_k) (input disturbances, E = B), full-state
+measurement y = x. Nonlinear: the same loop around hostsim.plant, the input (plus w) held
+over each tick, y = x sampled at the ticks. The detector and the control law are those of
+docs/architecture.md, with the same saturation as the firmware. Written independently of
+tipbot_fw so that comparing the two tests the firmware's implementation.
+
+Everything here is SI (m, rad, V); a gains file in paper units (cm) is converted on load.
+"""
+import json
+
+import numpy as np
+
+from hostsim import design
+from hostsim.model import RobotModel, get_variant, state_scale_to_si
+from hostsim.plant import Plant
+from hostsim.scenario import disturbance_at
+
+PLANT_DT_S = 0.001
+
+
+class GainSet:
+    """A gains file's matrices converted to SI (x_si = S x_file)."""
+
+    def __init__(self, path, doc=None):
+        if doc is None:
+            with open(path) as f:
+                doc = json.load(f)
+        self.path = path
+        self.doc = doc
+        self.variant = doc["model_variant"]
+        s = state_scale_to_si(get_variant(self.variant))
+        si = np.linalg.inv(s)
+        self.to_si = s
+        m = {k: np.array(doc[k], dtype=float) for k in ("A", "B", "C", "E", "K", "K_w", "L1", "L2", "G_w")}
+        self.A = s @ m["A"] @ si
+        self.B = s @ m["B"]
+        self.C = m["C"]
+        self.E = s @ m["E"]
+        self.K = m["K"] @ si
+        self.K_w = m["K_w"]
+        self.L1 = s @ m["L1"] @ si
+        self.L2 = s @ m["L2"] @ si
+        self.G_w = m["G_w"] @ si
+        self.ts_s = float(doc["ts_s"])
+        self.u_max_v = float(doc["u_max_v"])
+
+    def gain_to_si(self, k_file):
+        """A state-feedback gain in this file's units -> SI."""
+        return np.asarray(k_file, dtype=float) @ np.linalg.inv(self.to_si)
+
+
+def _saturate(u, limit):
+    return np.clip(u, -limit, limit)
+
+
+class HostController:
+    """Detector + control law of docs/architecture.md (SI), one tick at a time.
+
+    With ``k_pd`` (5x10, SI) the law is the PD baseline u = -K_pd y (no K_w); the detector
+    still runs, so its estimates can be compared.
+    """
+
+    def __init__(self, g, xhat0, y0, k_pd=None):
+        self.g = g
+        self.k_pd = k_pd
+        self.xh = np.array(xhat0, dtype=float)
+        self.y = np.array(y0, dtype=float)
+        self.w_hat = np.zeros(5)
+        self.u_unsat = self._law(self.xh, self.y, self.w_hat)
+        self.u = _saturate(self.u_unsat, g.u_max_v)
+        self._ca, self._cb = g.C @ g.A, g.C @ g.B
+
+    def _law(self, xh, y, w_hat):
+        if self.k_pd is not None:
+            return -self.k_pd @ y
+        return -self.g.K @ xh - self.g.K_w @ w_hat
+
+    def update(self, y_next):
+        """Read y_{k+1}: update the estimate and w^, return u_{k+1} (saturated)."""
+        g = self.g
+        # The detector is fed the input the controller applied (saturated, before any delay).
+        nu = y_next - self._ca @ self.xh - self._cb @ self.u
+        self.w_hat = g.G_w @ nu
+        self.xh = g.A @ self.xh + g.B @ self.u + g.L1 @ (self.y - g.C @ self.xh) + g.L2 @ nu
+        self.y = np.array(y_next, dtype=float)
+        self.u_unsat = self._law(self.xh, self.y, self.w_hat)
+        self.u = _saturate(self.u_unsat, g.u_max_v)
+        return self.u
+
+
+def truth_linear_model(g, sc, params=None):
+    """(A, B) in SI of the plant a linear run simulates.
+
+    The gains' own model when the scenario's plant is that model unperturbed (so Section 7
+    runs on exactly the paper's matrices), else the linearization of the scenario's plant.
+    """
+    if sc["plant_variant"] == g.variant and not sc["param_scale"]:
+        return g.A, g.B
+    from hostsim.fil import scaled_params
+    model = RobotModel(sc["plant_variant"], scaled_params(sc["param_scale"], params))
+    ac, bc = model.linearize()
+    a, b = design.discretize(ac, bc, g.ts_s)
+    s = state_scale_to_si(model.variant)
+    return s @ a @ np.linalg.inv(s), s @ b
+
+
+class _Recorder:
+    def __init__(self, n):
+        self.t = np.zeros(n + 1)
+        self.x = np.zeros((n + 1, 10))
+        self.xhat = np.zeros((n + 1, 10))
+        self.u = np.zeros((n + 1, 5))
+        self.u_unsat = np.zeros((n + 1, 5))
+        self.w = np.zeros((n + 1, 5))
+        self.w_hat = np.zeros((n + 1, 5))
+
+    def put(self, k, t, x, ctl, w):
+        self.t[k], self.x[k], self.xhat[k], self.w[k] = t, x, ctl.xh, w
+        self.u[k], self.u_unsat[k], self.w_hat[k] = ctl.u, ctl.u_unsat, ctl.w_hat
+
+    def result(self, n, **extra):
+        out = dict(t_s=self.t[:n], x=self.x[:n], xhat=self.xhat[:n], u=self.u[:n], u_unsat=self.u_unsat[:n],
+                   w=self.w[:n], w_hat=self.w_hat[:n], d_origin_m=0.0)
+        out.update(extra)
+        return out
+
+
+def _simulate(g, sc, k_pd, x0, step, fallen):
+    n_steps = int(round(sc["duration_s"] / g.ts_s))
+    xhat0 = sc["xhat0_si"] if sc["xhat0_si"] is not None else sc["x0_si"]
+    x = np.array(x0, dtype=float)
+    ctl = HostController(g, xhat0, g.C @ x, k_pd)
+    pending = [np.zeros(5)] * sc["extra_delay_ticks"]
+    rec = _Recorder(n_steps)
+    for k in range(n_steps + 1):
+        t = k * g.ts_s
+        w = np.array(disturbance_at(sc, t))
+        rec.put(k, t, x, ctl, w)
+        if k == n_steps or fallen(x):
+            return rec.result(k + 1, completed=k == n_steps)
+        pending.append(ctl.u)
+        x = step(x, pending.pop(0) + w, t)
+        ctl.update(g.C @ x)
+
+
+def simulate_linear(g, sc, k_pd=None, params=None):
+    """Run a scenario on the linear model; returns a dict of arrays (SI)."""
+    a, b = truth_linear_model(g, sc, params)
+    return _simulate(g, sc, k_pd, sc["x0_si"], lambda x, u, t: a @ x + b @ u, lambda x: False)
+
+
+def simulate_nonlinear(g, sc, k_pd=None, params=None, fall_rad=np.pi / 2):
+    """Run a scenario on the nonlinear plant with ideal measurement; dict of arrays (SI).
+
+    Stops early (completed=False) when |th1| passes fall_rad: the model means nothing once
+    the robot lies on the floor.
+    """
+    from hostsim.fil import scaled_params
+    model = RobotModel(sc["plant_variant"], scaled_params(sc["param_scale"], params))
+    to_si = np.diag(state_scale_to_si(model.variant))
+    plant = Plant(model, np.array(sc["x0_si"]) / to_si, dt_s=PLANT_DT_S, method=sc["plant_method"])
+    pushes = sorted((p["t_s"], p["th1_dot_rad_s"]) for p in sc["pushes"])
+
+    def step(x, u, t):
+        t_end = t + g.ts_s
+        while pushes and pushes[0][0] < t_end - 1e-12:
+            t_push, kick = pushes.pop(0)
+            if t_push > t + 1e-12:
+                plant.advance(u, t_push - t)
+                t = t_push
+            plant.x[7] += kick
+        plant.advance(u, t_end - t)
+        return plant.x_si
+
+    return _simulate(g, sc, k_pd, sc["x0_si"], step, lambda x: abs(x[2]) > fall_rad)

@@ -1,0 +1,245 @@
+"""Monte Carlo robustness: the firmware in the loop under model, sensor and timing uncertainty.
+
+``python -m hostsim montecarlo [--runs 200] [--duration 10] [--gains FILE ...] [--jobs N]
+[--seed S] [--kw0] [--out DIR]``
+
+Each run starts from scenarios/montecarlo_base.json (the physical plant: the robot) and
+draws, from its own generator seeded by (seed, run index):
+
+- every mass, length and inertia (links, wheels, wheel radius, track, rotor inertias Jm)
+  x U(0.8, 1.2); every motor constant (Km, Ke, Ra, friction beta) x U(0.9, 1.1); the
+  firmware keeps the nominal wheel radius, so a perturbed R_w is also a scale error on d;
+- gyro bias U(-2, 2) deg/s and white noise of standard deviation U(0, 0.5) deg/s: within
+  the firmware's calibration stillness check (rate spread <= 4 deg/s over 1 s), which a
+  larger noise would trip; a run the firmware refuses to start is counted apart;
+- encoder quantization (always: 1 count = 1 degree, hostsim.sensors), one extra tick of
+  input delay with probability 1/2, and loop wake-up jitter |N(0, s)|, s ~ U(0, 1) ms;
+- the release angle th1(0) ~ U(-0.04, 0.04) rad.
+
+The same draws are used for every gains file (common random numbers: the gains are
+compared on identical robots). A run succeeds when the firmware completes the duration
+(no fall or joint-limit stop), |th1| stays below 30 degrees and ends below 0.1 rad.
+Results do not depend on --jobs (see hostsim.parallel).
+"""
+import argparse
+import json
+import os
+import sys
+import time
+
+import numpy as np
+
+from hostsim.params import MOTOR_ROLES, REPO_ROOT
+
+GEOMETRY = ("m1_kg", "m2_kg", "m3_kg", "mw_kg", "l1_m", "l2_m", "l3_m", "rw_m", "track_m",
+            "j1_kg_m2", "j2_kg_m2", "j3_kg_m2", "jw_kg_m2") + tuple(r + "_jm_kg_m2" for r in MOTOR_ROLES)
+MOTOR = tuple("%s_%s" % (r, f) for r in MOTOR_ROLES for f in ("km_nm_a", "ke_v_s", "ra_ohm", "beta_nm_s"))
+GEOMETRY_SPREAD = 0.20
+MOTOR_SPREAD = 0.10
+GYRO_BIAS_DPS = 2.0
+GYRO_NOISE_MAX_DPS = 0.5
+JITTER_MAX_S = 0.001
+TH1_0_MAX_RAD = 0.04
+FINAL_TH1_RAD = 0.1
+DEFAULT_GAINS = ("gains/paper.json", "gains/physical.json")
+BASE_SCENARIO = "montecarlo_base"
+
+
+def draw(rng):
+    """One run's perturbations (a dict of scenario fields)."""
+    scale = {n: float(rng.uniform(1 - GEOMETRY_SPREAD, 1 + GEOMETRY_SPREAD)) for n in GEOMETRY}
+    scale.update({n: float(rng.uniform(1 - MOTOR_SPREAD, 1 + MOTOR_SPREAD)) for n in MOTOR})
+    return {
+        "param_scale": scale,
+        "gyro_bias_dps": float(rng.uniform(-GYRO_BIAS_DPS, GYRO_BIAS_DPS)),
+        "gyro_noise_dps": float(rng.uniform(0.0, GYRO_NOISE_MAX_DPS)),
+        "extra_delay_ticks": int(rng.integers(0, 2)),
+        "jitter_s": float(rng.uniform(0.0, JITTER_MAX_S)),
+        "th1_0_rad": float(rng.uniform(-TH1_0_MAX_RAD, TH1_0_MAX_RAD)),
+        "seed": int(rng.integers(0, 2 ** 31 - 1)),
+    }
+
+
+def scenario_for(base, d, duration_s=None):
+    sc = dict(base)
+    sc["param_scale"] = d["param_scale"]
+    sensors = dict(base["sensors"])
+    sensors.update(gyro_bias_dps=d["gyro_bias_dps"], gyro_noise_dps=d["gyro_noise_dps"])
+    sc["sensors"] = sensors
+    sc["extra_delay_ticks"] = d["extra_delay_ticks"]
+    sc["jitter_s"] = d["jitter_s"]
+    sc["seed"] = d["seed"]
+    x0 = list(base["x0_si"])
+    x0[2] = d["th1_0_rad"]
+    sc["x0_si"] = x0
+    if duration_s is not None:
+        sc["duration_s"] = float(duration_s)
+    return sc
+
+
+_DOCS = {}
+
+
+def gains_document(path, zero_kw):
+    """The gains document of a file, with K_w zeroed on request (cached per process)."""
+    key = (path, zero_kw)
+    if key not in _DOCS:
+        with open(path) as f:
+            doc = json.load(f)
+        if zero_kw:
+            doc["K_w"] = np.zeros((5, 5)).tolist()
+        _DOCS[key] = doc
+    return _DOCS[key]
+
+
+def run_one(task):
+    """Worker: one Monte Carlo run -> a JSON-ready row."""
+    from hostsim.fil import run_firmware
+    from hostsim.metrics import UPRIGHT_LIMIT_RAD
+
+    label, gains_path, zero_kw, base, index, seed, duration_s = task
+    d = draw(np.random.default_rng([seed, index]))
+    sc = scenario_for(base, d, duration_s)
+    t0 = time.perf_counter()
+    run = run_firmware(sc, gains_doc=gains_document(gains_path, zero_kw), sysfs=False, keep_rows=False)
+    wall = time.perf_counter() - t0
+    x, u = run["x"], run["u"]
+    th1 = np.abs(x[:, 2])
+    completed = bool(run["completed"])
+    success = completed and bool(np.all(th1 < UPRIGHT_LIMIT_RAD)) and float(th1[-1]) < FINAL_TH1_RAD
+    return {
+        "gains": label, "index": index, "success": success, "exit_code": run["exit_code"],
+        "stop_reason": run["stop_reason"], "refused": run["stop_reason"] == "calibration",
+        "simulated_s": float(run["t_s"][-1]), "wall_s": wall,
+        "peak_abs_th1_rad": float(th1.max()), "peak_abs_th2_rad": float(np.abs(x[:, 3]).max()),
+        "peak_abs_th3_rad": float(np.abs(x[:, 4]).max()), "final_abs_th1_rad": float(th1[-1]),
+        "peak_abs_u_v": float(np.abs(u[:, [0, 1, 3, 4]]).max()),
+        "draw": d,
+    }
+
+
+def variants(gains_paths, kw0, only_kw0=False):
+    """[(label, path, zero_kw)]: each gains file, plus its K_w = 0 twin with kw0."""
+    out = []
+    for path in gains_paths:
+        path = path if os.path.isabs(path) else os.path.join(REPO_ROOT, path)
+        name = os.path.splitext(os.path.basename(path))[0]
+        if not only_kw0:
+            out.append((name, path, False))
+        if kw0 or only_kw0:
+            out.append((name + " K_w=0", path, True))
+    return out
+
+
+def warm_models(plant_variants=("physical",)):
+    """Generate the model code cache once, before the workers would race to."""
+    from hostsim.model import RobotModel
+    from hostsim.params import load_params
+    for v in plant_variants:
+        RobotModel(v, load_params())
+
+
+def run_montecarlo(runs=200, duration_s=None, gains_paths=DEFAULT_GAINS, kw0=False, jobs=None, seed=0,
+                   base=None, desc="Monte Carlo", only_kw0=False):
+    """-> {label: {"runs": [rows], "summary": {...}}, "_meta": {...}}."""
+    from hostsim.parallel import default_jobs, run_tasks
+    from hostsim.scenario import load_scenario
+
+    base = base or load_scenario(BASE_SCENARIO)
+    tasks = [(label, path, zk, base, i, seed, duration_s)
+             for label, path, zk in variants(gains_paths, kw0, only_kw0) for i in range(runs)]
+    jobs = default_jobs() if jobs is None else jobs
+    t0 = time.perf_counter()
+    rows = run_tasks(run_one, tasks, jobs=jobs, desc=desc, warm=lambda: warm_models((base["plant_variant"],)))
+    wall = time.perf_counter() - t0
+    out = {}
+    for label, _, _ in variants(gains_paths, kw0, only_kw0):
+        mine = [r for r in rows if r["gains"] == label]
+        out[label] = {"runs": mine, "summary": summarize(mine)}
+    out["_meta"] = {"runs_per_gains": runs, "duration_s": duration_s or base["duration_s"], "jobs": jobs,
+                    "seed": seed, "wall_s": wall, "total_runs": len(tasks),
+                    "runs_per_s": len(tasks) / wall if wall > 0 else None,
+                    "plant_variant": base["plant_variant"], "plant_method": base["plant_method"]}
+    return out
+
+
+def _pct(values, q):
+    return float(np.percentile(values, q)) if len(values) else None
+
+
+def summarize(rows):
+    n = len(rows)
+    ok = [r for r in rows if r["success"]]
+    started = [r for r in rows if not r["refused"]]
+    tilt = [r["peak_abs_th1_rad"] for r in started]
+    volt = [r["peak_abs_u_v"] for r in started]
+    by_delay = {}
+    for delay in (0, 1):
+        sel = [r for r in started if r["draw"]["extra_delay_ticks"] == delay]
+        by_delay[str(delay)] = (sum(r["success"] for r in sel) / len(sel)) if sel else None
+    reasons = {}
+    for r in rows:
+        if not r["success"]:
+            reasons[r["stop_reason"] or "?"] = reasons.get(r["stop_reason"] or "?", 0) + 1
+    return {
+        "runs": n, "successes": len(ok), "success_rate": len(ok) / n if n else None,
+        "refused": n - len(started), "failures_by_reason": reasons,
+        "success_rate_by_extra_delay": by_delay,
+        "peak_abs_th1_rad": {"median": _pct(tilt, 50), "p95": _pct(tilt, 95), "max": max(tilt) if tilt else None},
+        "peak_abs_u_v": {"median": _pct(volt, 50), "p95": _pct(volt, 95), "max": max(volt) if volt else None},
+        "mean_wall_s": float(np.mean([r["wall_s"] for r in rows])) if rows else None,
+    }
+
+
+def format_table(results):
+    head = "%-22s %5s %8s %7s %22s %22s %s" % ("gains", "runs", "success", "refused",
+                                               "peak|th1| med/p95/max", "peak|u| V med/p95/max", "failures")
+    lines = [head]
+    for label, res in results.items():
+        if label.startswith("_"):
+            continue
+        s = res["summary"]
+
+        def trio(d, fmt):
+            return "/".join("-" if d[k] is None else fmt % d[k] for k in ("median", "p95", "max"))
+        fails = ", ".join("%s %d" % kv for kv in sorted(s["failures_by_reason"].items())) or "-"
+        lines.append("%-22s %5d %7.1f%% %7d %22s %22s %s" % (
+            label, s["runs"], 100 * s["success_rate"], s["refused"], trio(s["peak_abs_th1_rad"], "%.3f"),
+            trio(s["peak_abs_u_v"], "%.2f"), fails))
+    m = results["_meta"]
+    lines.append("%d runs of %g s in %.1f s on %d workers (%.2f runs/s, %.2f s per run per worker)" % (
+        m["total_runs"], m["duration_s"], m["wall_s"], m["jobs"], m["runs_per_s"] or 0,
+        m["wall_s"] * m["jobs"] / max(1, m["total_runs"])))
+    return "\n".join(lines)
+
+
+def write(results, out_dir):
+    from hostsim import plots
+    os.makedirs(out_dir, exist_ok=True)
+    with open(os.path.join(out_dir, "montecarlo.json"), "w") as f:
+        json.dump(results, f, indent=1, sort_keys=True)
+    return plots.montecarlo_figure({k: v for k, v in results.items() if not k.startswith("_")},
+                                   os.path.join(out_dir, "montecarlo.png"))
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(prog="python -m hostsim montecarlo", description=__doc__.split("\n\n")[0])
+    ap.add_argument("--runs", type=int, default=200, help="runs per gains file (default 200)")
+    ap.add_argument("--duration", type=float, default=None, help="seconds per run (default: the base scenario's, 10)")
+    ap.add_argument("--gains", nargs="+", default=list(DEFAULT_GAINS))
+    ap.add_argument("--kw0", action="store_true", help="also run each gains file with K_w = 0 (diagnosis)")
+    ap.add_argument("--jobs", type=int, default=None, help="worker processes (default: all cores)")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--out", default=os.path.join(REPO_ROOT, "out", "montecarlo"))
+    args = ap.parse_args(argv)
+    if args.runs < 1:
+        ap.error("--runs must be at least 1")
+    res = run_montecarlo(args.runs, args.duration, args.gains, args.kw0, args.jobs, args.seed)
+    fig = write(res, args.out)
+    print(format_table(res))
+    print("wrote %s and %s" % (os.path.join(args.out, "montecarlo.json"), os.path.join(args.out, fig)))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,54 @@
+"""`python -m hostsim run/sim`: outputs written, summary printed, errors name the field."""
+import json
+import os
+
+from hostsim.__main__ import main
+
+
+def test_run_writes_metrics_and_plots(tmp_path, capsys):
+    out = tmp_path / "near"
+    assert main(["run", "near_equilibrium", "--out", str(out), "--modes", "linear,nonlinear"]) == 0
+    doc = json.loads((out / "metrics.json").read_text())
+    assert set(doc["runs"]) == {"linear/optimal", "nonlinear/optimal"}
+    assert doc["runs"]["linear/optimal"]["upright"]
+    for name in doc["plots"].values():
+        assert (out / name).stat().st_size > 1000
+    text = capsys.readouterr().out
+    assert "near_equilibrium" in text and "linear/optimal" in text
+
+
+def test_run_fails_on_unmet_expectations(tmp_path, capsys):
+    sc = tmp_path / "strict.json"
+    sc.write_text(json.dumps({"duration_s": 1.0, "x0_si": [0, 0, 0.03, 0, 0, 0, 0, 0, 0, 0], "modes": ["linear"],
+                              "expect": {"linear/optimal": {"max_abs_th1_rad": 0.001}}}))
+    assert main(["run", str(sc), "--out", str(tmp_path / "o"), "--no-plots"]) == 1
+    assert "EXPECTATION FAILED: linear/optimal max_abs_th1_rad" in capsys.readouterr().out
+
+
+def test_run_names_the_bad_field(tmp_path, capsys):
+    sc = tmp_path / "bad.json"
+    sc.write_text(json.dumps({"duration_s": 1.0, "disturbances": [{"t_start_s": 1, "t_end_s": 2, "w_v": [1, 1]}]}))
+    assert main(["run", str(sc), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert "bad.json" in err and "disturbances[0].w_v" in err
+
+
+def test_unknown_command(capsys):
+    assert main(["fly"]) == 2
+    assert "unknown command 'fly'" in capsys.readouterr().err
+    assert main([]) == 0
+    assert "montecarlo" in capsys.readouterr().out
+
+
+def test_sim_writes_the_report(tmp_path, capsys):
+    out = tmp_path / "sim"
+    code = main(["sim", "--out", str(out), "--scenarios", "section7", "--no-robustness", "--device", "memory"])
+    assert code == 0
+    report = (out / "report.md").read_text()
+    assert "Where the paper's claims cannot hold" in report
+    assert "Section 7's initial state cannot be handled without saturation" in report
+    for line in report.splitlines():
+        if line.startswith("![") and "](" in line:
+            assert os.path.exists(out / line.split("](")[1].rstrip(")"))
+    text = capsys.readouterr().out
+    assert "linear/optimal" in text and "report.md" in text
