@@ -108,6 +108,10 @@ class NotAnIdentifyLog(IdentifyError):
     pass
 
 
+# An EV3 motor at any usable duty turns many degrees in this time.
+STALL_MIN_DRIVE_S = 0.1
+
+
 class TooFewSamples(IdentifyError):
     pass
 
@@ -228,15 +232,23 @@ def check_drive(log):
     n_rows = int(drive.sum())
     t_cmd = log.header.get("coast_command_s") or [None]
     t_drive = t_cmd[0] if t_cmd[0] is not None else (log.t[drive].max() if n_rows else 0.0)
+    # A motor that did not turn during a drive long enough for any working motor to turn is
+    # stalled, however few samples a slow or loaded brick took: say that, not "too few samples".
+    c = log.sign * log.pos[drive]
+    moved = c.max() - c.min() if n_rows else 0
+
+    def stalled():
+        return MotorStalled("%s: the motor stalled: it turned %d count(s) in %.2f s at duty %d %% (blocked, not "
+                            "connected, or a duty too small to overcome friction)"
+                            % (where, moved, t_drive, log.duty_pct))
+
+    if n_rows >= 2 and t_drive >= STALL_MIN_DRIVE_S and moved < STALL_COUNTS:
+        raise stalled()
     if n_rows < MIN_DRIVE_ROWS:
         raise TooFewSamples("%s: too few samples: %d rows while driven (at least %d needed): the drive was too "
                             "short or the reads too slow (--seconds, --period-ms)" % (where, n_rows, MIN_DRIVE_ROWS))
-    c = log.sign * log.pos[drive]
-    moved = c.max() - c.min()
     if moved < STALL_COUNTS:
-        raise MotorStalled("%s: the motor stalled: it turned %d count(s) in %.2f s at duty %d %% (blocked, not "
-                           "connected, or a duty too small to overcome friction)"
-                           % (where, moved, t_drive, log.duty_pct))
+        raise stalled()
     ev = count_events(log, fw_identify.PHASE_DRIVE)
     if len(ev[0]) < MIN_DRIVE_EVENTS:
         raise TooFewSamples("%s: too few samples: the count changed %d times while driven (at least %d needed)"

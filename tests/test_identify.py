@@ -136,6 +136,9 @@ def _simulated(tmp_path, name, motor=1, **kw):
     ("short", dict(seconds=0.005), I.TooFewSamples, "too few samples: 2 rows while driven"),
     ("slow", dict(motor=5, period_s=0.02), I.TooFewSamples, "too few samples: the count changed only"),
     ("stalled", dict(blocked=True), I.MotorStalled, "the motor stalled: it turned 0 count"),
+    # a loaded brick reading slowly: still "stalled", the more useful diagnosis
+    ("stalled_slow", dict(blocked=True, seconds=0.3, period_s=0.05), I.MotorStalled,
+     "the motor stalled: it turned 0 count"),
     ("unsteady", dict(seconds=0.15), I.NotSteady, "the motor never reached a steady speed"),
 ])
 def test_unusable_logs_get_a_clear_error(tmp_path, capsys, name, kw, error, message):
