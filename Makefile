@@ -45,11 +45,11 @@ help:
 	@echo "tipbot make targets (Python ones run in $(VENV), made by 'make venv'):"
 	@echo "  venv         create/update $(VENV) from $(REQ) (idempotent)"
 	@echo "  test         run the test suite (pytest tests/; PYTEST_ARGS=...)"
-	@echo "  sim          run the firmware on the simulated robot"
+	@echo "  sim          paper scenarios + robustness, firmware in the loop -> out/sim/report.md"
 	@echo "  gains        regenerate gains/*.json (TS=0.010 VARIANT=paper|physical)"
 	@echo "  paper-check  compare the paper variant's gains with the paper's Appendix C"
 	@echo "  replay       replay a robot log on the host (LOG=file; GAINS=other.json)"
-	@echo "  bench        guest instructions per control tick on the virtual brick (TICKS=N)"
+	@echo "  bench        simulation real-time factor; instructions per control tick on the virtual brick"
 	@echo "  brick        set up the virtual brick for 'make bench' (root, ~2 min)"
 	@echo "  stage        lay out what deploy copies, in $(STAGE) (DEPLOY_VARIANT=, CONFIG=)"
 	@echo "  deploy       copy what changed to the brick over ssh (HOST=robot@ev3dev.local; SERVICE=1)"
@@ -91,6 +91,7 @@ replay: venv
 # with Debian armel's Python 3.11 + numpy 1.24: an approximation of the brick's Python 3.5 +
 # numpy 1.12, see README). Without the brick it says how to make one.
 bench: venv
+	$(VPY) -m hostsim.bench
 	$(VPY) tools/tick-cost --ticks $(TICKS) -- python3 -m tipbot_fw.bench
 
 brick:

@@ -21,7 +21,8 @@ Every field is validated; errors name the file and the dotted field path. Fields
   gyro_calibration.duration_s                  stillness window for the bias at start
   gyro_calibration.max_rate_spread_dps         max - min rate allowed in that window
   gyro_calibration.max_angle_change_deg        sensor angle change allowed in that window
-  gyro_bias_time_constant_s                    slow bias tracking while running; null = off
+  gyro_bias_time_constant_s                    slow bias tracking while running; null = off (the
+                                               default: see tipbot_fw.signals for why)
   gyro_bias_quiet_dps                          the tracking learns only from samples whose
                                                corrected rate is within +- this (the robot at rest)
   battery_period_s                             battery re-read period (outside the ticks)
