@@ -104,6 +104,7 @@ class World:
         self.readings = None
         self.log_t, self.log_x, self.log_u, self.log_w = [], [], [], []
         self.released = False
+        self.io_marks = []
         self.clock = None
         self.publish(0.0)
 
@@ -144,6 +145,9 @@ class World:
         if not self.released:
             self.released = True
             self._record(t_from)
+        if self.fake is not None:
+            # Where each loop iteration's sysfs operations end in the fake's client-I/O log.
+            self.io_marks.append(len(self.fake.io.log))
         if self.sc["jitter_s"] > 0:
             late = abs(self.rng.normal(0.0, self.sc["jitter_s"]))
             t_to = t_to + round(late / PLANT_DT_S) * PLANT_DT_S
@@ -205,7 +209,8 @@ def run_firmware(sc, gains_path=None, gains_doc=None, sysfs=True, log_path=None,
     keep_rows: read the firmware's log back for its estimates (a temporary log unless
     log_path is given); without it only the plant's side is returned.
 
-    Returns a dict: t_s (tick times from the release), x (plant state at the ticks, SI), u
+    Returns a dict: t_s (tick times from the release), io_per_iteration (sysfs runs only: the
+    device layer's (op, path, bytes) between two consecutive sleeps of the loop), x (plant state at the ticks, SI), u
     (the motors' volts over each tick, from the duties), w (the disturbance added to them),
     d_origin_m (see the module docstring), exit_code, stop_reason, completed, header (the
     firmware log's), and with keep_rows: xhat, w_hat, y (the firmware's, shifted into the
@@ -265,6 +270,8 @@ def run_firmware(sc, gains_path=None, gains_doc=None, sysfs=True, log_path=None,
     x0 = sc["x0_si"]
     d_origin = np.array([x0[0] - rw * x0[2], x0[1] - rw * x0[2]])
     out = _world_result(world, sc, d_origin)
+    if fake is not None:
+        out["io_per_iteration"] = [fake.io.log[a:b] for a, b in zip(world.io_marks, world.io_marks[1:])]
     out.update(exit_code=code, stop_reason=header.get("stop_reason"), header=header,
                completed=code == 0 and header.get("stop_reason") == "completed")
     if rows is not None:
