@@ -191,6 +191,11 @@ def summarize(rows):
     }
 
 
+def trio(d, fmt, sep="/"):
+    """'median/p95/max' of a distribution summary ('-' where there were no runs)."""
+    return sep.join("-" if d[k] is None else fmt % d[k] for k in ("median", "p95", "max"))
+
+
 def format_table(results):
     head = "%-22s %5s %8s %7s %22s %22s %s" % ("gains", "runs", "success", "refused",
                                                "peak|th1| med/p95/max", "peak|u| V med/p95/max", "failures")
@@ -199,9 +204,6 @@ def format_table(results):
         if label.startswith("_"):
             continue
         s = res["summary"]
-
-        def trio(d, fmt):
-            return "/".join("-" if d[k] is None else fmt % d[k] for k in ("median", "p95", "max"))
         fails = ", ".join("%s %d" % kv for kv in sorted(s["failures_by_reason"].items())) or "-"
         lines.append("%-22s %5d %7.1f%% %7d %22s %22s %s" % (
             label, s["runs"], 100 * s["success_rate"], s["refused"], trio(s["peak_abs_th1_rad"], "%.3f"),

@@ -10,6 +10,8 @@ import os
 
 import numpy as np
 
+from hostsim.montecarlo import trio
+
 CM = 100.0
 
 # (what, paper's statement, function(metrics) -> our value as text), per scenario.
@@ -228,13 +230,10 @@ def mc_table(mc):
         if label.startswith("_"):
             continue
         s = res["summary"]
-
-        def trio(d, fmt):
-            return " / ".join("-" if d[k] is None else fmt % d[k] for k in ("median", "p95", "max"))
         bd = s["success_rate_by_extra_delay"]
         out.append("| %s | %d | %.1f %% | %d | %s | %s | %s | %s |" % (
-            label, s["runs"], 100 * s["success_rate"], s["refused"], trio(s["peak_abs_th1_rad"], "%.3f"),
-            trio(s["peak_abs_u_v"], "%.2f"),
+            label, s["runs"], 100 * s["success_rate"], s["refused"], trio(s["peak_abs_th1_rad"], "%.3f", " / "),
+            trio(s["peak_abs_u_v"], "%.2f", " / "),
             " / ".join("-" if bd[k] is None else "%.0f %%" % (100 * bd[k]) for k in ("0", "1")),
             ", ".join("%s %d" % kv for kv in sorted(s["failures_by_reason"].items())) or "-"))
     return "\n".join(out)

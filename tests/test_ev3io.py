@@ -27,13 +27,6 @@ def config():
 
 
 @pytest.fixture
-def fake():
-    f = FakeEV3()
-    yield f
-    f.close()
-
-
-@pytest.fixture
 def devs(fake, config):
     d = Ev3Devices(config, fake.sysfs_root, io=fake.io)
     fake.poll()

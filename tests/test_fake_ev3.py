@@ -20,13 +20,6 @@ from hostsim.sensors import SensorModel
 
 
 @pytest.fixture
-def fake():
-    f = FakeEV3()
-    yield f
-    f.close()
-
-
-@pytest.fixture
 def ev3dev2_root(fake):
     saved = ev3dev2.Device.DEVICE_ROOT_PATH
     ev3dev2.Device.DEVICE_ROOT_PATH = fake.sysfs_root

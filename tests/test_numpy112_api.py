@@ -13,9 +13,9 @@ import os
 import numpy
 import pytest
 
-REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+from robot_side import REPO, robot_python_files
+
 API_FILE = os.path.join(REPO, "tests", "data", "numpy_1_12_api.txt")
-ROBOT_DIRS = ("tipbot_fw", "ev3")
 
 
 def load_api():
@@ -25,24 +25,6 @@ def load_api():
 
 API = load_api()
 SUBPACKAGES = frozenset(name.split(".")[0] for name in API if "." in name)
-
-
-def robot_python_files():
-    """The .py files, and extension-less files with a python shebang, under ROBOT_DIRS."""
-    out = []
-    for top in ROBOT_DIRS:
-        for dirpath, dirnames, filenames in os.walk(os.path.join(REPO, top)):
-            dirnames[:] = [d for d in dirnames if d != "__pycache__"]
-            for name in sorted(filenames):
-                path = os.path.join(dirpath, name)
-                if name.endswith(".py"):
-                    out.append(path)
-                elif "." not in name:
-                    with open(path, "rb") as f:
-                        first = f.readline()
-                    if first.startswith(b"#!") and b"python" in first:
-                        out.append(path)
-    return sorted(out)
 
 
 def _chain(node):

@@ -13,29 +13,10 @@ import sys
 
 import pytest
 
-REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-ROBOT_DIRS = ("tipbot_fw", "ev3")
+from robot_side import REPO, ROBOT_DIRS, robot_python_files
 FORBIDDEN = ("scipy", "sympy", "matplotlib", "control", "hostsim", "tqdm", "mpmath", "pandas",
              "dataclasses", "typing_extensions")
 VERMIN_ARGS = ["--no-tips", "--violations", "-t=3.5-", "--eval-annotations"]
-
-
-def robot_python_files():
-    """The .py files, and extension-less files with a python shebang (ev3/tipbot), to check."""
-    out = []
-    for top in ROBOT_DIRS:
-        for dirpath, dirnames, filenames in os.walk(os.path.join(REPO, top)):
-            dirnames[:] = [d for d in dirnames if d != "__pycache__"]
-            for name in filenames:
-                path = os.path.join(dirpath, name)
-                if name.endswith(".py"):
-                    out.append(path)
-                elif "." not in name:
-                    with open(path, "rb") as f:
-                        first = f.readline()
-                    if first.startswith(b"#!") and b"python" in first:
-                        out.append(path)
-    return sorted(out)
 
 
 def run_vermin(paths):

@@ -42,7 +42,6 @@ import array
 import os
 import sys
 import time
-import traceback
 
 import numpy as np
 
@@ -52,7 +51,7 @@ from tipbot_fw.clock import MonotonicClock
 from tipbot_fw.config import ConfigError, load_config
 from tipbot_fw.safety import (EXIT_DEVICES, EXIT_ERROR, EXIT_INTERRUPT, EXIT_INVALID, EXIT_OK,
                               EXIT_REFUSED, DeviceFailure, LowBattery, SafetyStop, SignalGuard,
-                              classify)
+                              outcome)
 
 KIND = 'identify'
 IDENTIFY_VERSION = 1
@@ -408,12 +407,7 @@ def run_identify(motor, clock, duty=DEFAULTS['duty'], seconds=DEFAULTS['seconds'
             say(f)
     # From here on a signal is only counted (guard disarmed): the log gets written.
     try:
-        if error is None:
-            reason, code, msg = 'completed', EXIT_OK, 'completed'
-        else:
-            reason, code, msg = classify(error)
-            if code == EXIT_ERROR:
-                traceback.print_exception(type(error), error, error.__traceback__)
+        reason, code, msg = outcome(error)
         header.update(stop_reason=reason, stop_message=msg, exit_code=code,
                       stop_wall_time_s=time.time())
         header['reads'] = dict((PHASE_NAMES[p], n) for p, n in rec.reads.items())

@@ -14,6 +14,7 @@ Exit codes of `python3 -m tipbot_fw` (also in README/cli help):
   143 terminated (SIGTERM)
 """
 import signal
+import traceback
 
 EXIT_OK = 0
 EXIT_ERROR = 1
@@ -77,6 +78,17 @@ def classify(exc):
     if isinstance(exc, KeyboardInterrupt):
         return 'keyboard_interrupt', EXIT_INTERRUPT, 'interrupted'
     return 'exception', EXIT_ERROR, '{}: {}'.format(type(exc).__name__, exc)
+
+
+def outcome(error):
+    """-> (reason, exit code, message) of a run that ended with `error` (None: it completed).
+    An unexpected error (a bug) also gets its traceback printed, for the owner to report."""
+    if error is None:
+        return 'completed', EXIT_OK, 'completed'
+    reason, code, msg = classify(error)
+    if code == EXIT_ERROR:
+        traceback.print_exception(type(error), error, error.__traceback__)
+    return reason, code, msg
 
 
 class SignalGuard(object):

@@ -5,7 +5,6 @@ the motors are stopped first, then the log is written, then the reason is report
 """
 import sys
 import time
-import traceback
 
 import numpy as np
 
@@ -15,8 +14,7 @@ from tipbot_fw.calibration import calibrate_gyro
 from tipbot_fw.config import motor_polarity
 from tipbot_fw.core import Core
 from tipbot_fw.loop import ControlLoop
-from tipbot_fw.safety import (EXIT_ERROR, EXIT_OK, DeviceFailure, LowBattery, SignalGuard,
-                              classify)
+from tipbot_fw.safety import EXIT_ERROR, EXIT_OK, DeviceFailure, LowBattery, SignalGuard, outcome
 
 
 def base_header(gains, config, duration_s):
@@ -90,12 +88,7 @@ def run_session(devices, gains, config, clock, log_path=None, duration_s=None,
             say('stop_all failed: {!r}'.format(e))
     # From here on a signal is only counted (guard disarmed): the log gets written.
     try:
-        if error is None:
-            reason, code, msg = 'completed', EXIT_OK, 'completed'
-        else:
-            reason, code, msg = classify(error)
-            if code == EXIT_ERROR:
-                traceback.print_exception(type(error), error, error.__traceback__)
+        reason, code, msg = outcome(error)
         header['stop_reason'] = reason
         header['stop_message'] = msg
         header['exit_code'] = code
