@@ -298,7 +298,9 @@ class Ev3Devices(object):
     def write_duties(self, duties):
         """Duties (int percent in [-100, 100], signed for each motor) of r, l, th2, th3; writes
         only those changed since the last successful write. A failed motor is retried on the
-        next call. Ev3WriteError on an OS failure, ValueError on a duty out of range."""
+        next call. Ev3WriteError on an OS failure, ValueError on a duty out of range.
+        Unrolled, like read_raw: on the brick a loop over the four motors, with its indexing,
+        costs more than the writes' own Python."""
         dr, dl, d2, d3 = duties
         last = self._last
         pwrite = self._pwrite
