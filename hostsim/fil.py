@@ -28,7 +28,6 @@ the linear simulation, as on the robot:
   firmware's estimates, shifted by that offset) are in the scenario's frame; metrics measure
   the final displacement from d_origin_m.
 """
-import math
 import os
 import tempfile
 
@@ -316,7 +315,3 @@ def _firmware_side(rows, gains, d_origin, n):
         y, xhat, w_hat, u_cmd, u_unsat = (np.vstack([a, np.full((pad, a.shape[1]), np.nan)])
                                           for a in (y, xhat, w_hat, u_cmd, u_unsat))
     return dict(y=y, xhat=xhat, w_hat=w_hat, u_cmd=u_cmd, u_unsat=u_unsat)
-
-
-def upright(x_si, limit_rad=math.radians(30)):
-    return bool(np.all(np.abs(x_si[:, 2]) < limit_rad))

@@ -126,12 +126,3 @@ class Plant:
         self.x = np.array(x)
         self.t_s += duration_s
         return self.x
-
-    def wheel_angles_rel_rad(self):
-        """Wheel angles relative to link 1 (what the wheel encoders measure), radians."""
-        x = self.x_si
-        rw = self.model.params["rw_m"]
-        return x[0] / rw - x[2], x[1] / rw - x[2]
-
-    def fallen(self, limit_rad=np.pi / 2):
-        return abs(self.x[2]) > limit_rad

@@ -151,12 +151,6 @@ class SingleMotor(object):
         except OSError as e:
             raise ev3io.Ev3WriteError(self.port, name, 'writing', e)
 
-    def read_position(self):
-        try:
-            return int(self.pread(self.position_fd, _READ_BYTES, 0))
-        except (OSError, ValueError) as e:
-            raise ev3io.Ev3ReadError(self.port, 'position', 'reading', e)
-
     def read_battery_v(self):
         """Battery voltage in volts (sysfs gives microvolts)."""
         try:
