@@ -9,7 +9,7 @@ import json
 import math
 import os
 
-from hostsim.errors import ParameterError
+from hostsim.errors import ParameterError, read_json
 
 REPO_ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 DEFAULT_PARAMS_PATH = os.path.join(REPO_ROOT, "params", "robot.json")
@@ -56,14 +56,7 @@ def parse_params(doc, source="<parameters>"):
 
 def load_params(path=DEFAULT_PARAMS_PATH):
     """Read and validate a parameters file; errors name the file and the field."""
-    try:
-        with open(path) as f:
-            doc = json.load(f)
-    except OSError as exc:
-        raise ParameterError("%s: cannot read parameters file: %s" % (path, exc.strerror or exc))
-    except ValueError as exc:
-        raise ParameterError("%s: not valid JSON: %s" % (path, exc))
-    return parse_params(doc, source=path)
+    return parse_params(read_json(path, "parameters file", ParameterError), source=path)
 
 
 def params_hash(values):

@@ -24,11 +24,10 @@ Each scenario runs in one or more ``modes`` (hostsim.runner):
 ``controllers``: ``optimal`` (LQR + detector + K_w) and/or ``pd`` (the Appendix D
 baseline of hostsim.pd); each mode runs once per controller.
 """
-import json
 import math
 import os
 
-from hostsim.errors import TipbotError
+from hostsim.errors import TipbotError, read_json
 from hostsim.params import REPO_ROOT, REQUIRED
 
 SCENARIO_DIR = os.path.join(REPO_ROOT, "scenarios")
@@ -208,14 +207,7 @@ def load_scenario(path):
         candidate = os.path.join(SCENARIO_DIR, path if path.endswith(".json") else path + ".json")
         if os.path.exists(candidate):
             path = candidate
-    try:
-        with open(path) as f:
-            doc = json.load(f)
-    except OSError as exc:
-        raise ScenarioError("%s: cannot read scenario: %s" % (path, exc.strerror or exc))
-    except ValueError as exc:
-        raise ScenarioError("%s: not valid JSON: %s" % (path, exc))
-    sc = parse_scenario(doc, path)
+    sc = parse_scenario(read_json(path, "scenario", ScenarioError), path)
     if not os.path.isabs(sc["gains"]):
         sc["gains"] = os.path.join(REPO_ROOT, sc["gains"])
     return sc
