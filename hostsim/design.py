@@ -8,6 +8,7 @@ import control
 import numpy as np
 
 from hostsim.errors import DesignError
+from hostsim.model import state_scale_to_si
 
 # Section 7: Q = diag(20, 20, 1e7, 1, ..., 1), R = diag(50, 50, 50, 5000, 5000), in the
 # paper's units (d in cm). The extraction lost the exponent's sign; 1e+7 is the one whose
@@ -34,6 +35,14 @@ def discretize(ac, bc, ts_s):
     n, m = bc.shape
     sysd = control.ss(ac, bc, np.eye(n), np.zeros((n, m))).sample(ts_s, method="zoh")
     return np.asarray(sysd.A), np.asarray(sysd.B)
+
+
+def discrete_model_si(model, ts_s):
+    """Discrete (A, B) of a hostsim.model.RobotModel at ts_s, with the state in SI units."""
+    ac, bc = model.linearize()
+    a, b = discretize(ac, bc, ts_s)
+    t = state_scale_to_si(model.variant)
+    return t @ a @ np.linalg.inv(t), t @ b
 
 
 def structure_report(a, b, c, actuated):

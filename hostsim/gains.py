@@ -45,7 +45,7 @@ def design_gains(variant, params, ts_s=DEFAULT_TS_S, detector_poles=None):
     if variant.paper_conventions:
         k, p, cl_eig = design.dlqr(a, b, q, r, ACTUATED_INPUTS)
     else:
-        check_models = [_linear_model_si(get_variant(name), params, ts_s) for name in ROBUST_AGAINST]
+        check_models = [design.discrete_model_si(RobotModel(name, params), ts_s) for name in ROBUST_AGAINST]
         r_wheel_scale, r, k, p, cl_eig, robust, worst = design.robust_wheel_weight(
             a, b, q, r, ACTUATED_INPUTS, check_models, state_scale_to_si(variant))
     k_w = design.disturbance_gain(a, b, q, r, k, p, e_mat)
@@ -55,14 +55,6 @@ def design_gains(variant, params, ts_s=DEFAULT_TS_S, detector_poles=None):
                 K=k, P=p, K_w=k_w, L1=l1, L2=l2, G_w=g_w,
                 closed_loop_eigenvalues=cl_eig, detector_eigenvalues=det_eig,
                 structure=design.structure_report(a, b, c, ACTUATED_INPUTS))
-
-
-def _linear_model_si(variant, params, ts_s):
-    """Discrete (A, B) of a variant with the state in SI units."""
-    ac, bc = RobotModel(variant, params).linearize()
-    a, b = design.discretize(ac, bc, ts_s)
-    t = state_scale_to_si(variant)
-    return t @ a @ np.linalg.inv(t), t @ b
 
 
 def _num(x):

@@ -99,11 +99,8 @@ def truth_linear_model(g, sc, params=None):
     if sc["plant_variant"] == g.variant and not sc["param_scale"]:
         return g.A, g.B
     from hostsim.fil import scaled_params
-    model = RobotModel(sc["plant_variant"], scaled_params(sc["param_scale"], params))
-    ac, bc = model.linearize()
-    a, b = design.discretize(ac, bc, g.ts_s)
-    s = state_scale_to_si(model.variant)
-    return s @ a @ np.linalg.inv(s), s @ b
+    return design.discrete_model_si(RobotModel(sc["plant_variant"], scaled_params(sc["param_scale"], params)),
+                                    g.ts_s)
 
 
 class _Recorder:
