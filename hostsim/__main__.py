@@ -9,13 +9,13 @@ import importlib
 import sys
 
 COMMANDS = {
-    "run": ("hostsim.runner", "run one scenario file: metrics.json, plots, summary"),
-    "sim": ("hostsim.sim", "the paper's scenarios + robustness summary -> out/sim/ (make sim)"),
-    "montecarlo": ("hostsim.montecarlo", "Monte Carlo robustness of the firmware in the loop"),
-    "roa": ("hostsim.roa", "region of attraction (largest recovered initial angles)"),
-    "bench": ("hostsim.bench", "simulation speed: real-time factor, Monte Carlo throughput"),
-    "replay": ("hostsim.replay", "replay a robot log on the host"),
-    "identify": ("hostsim.identify", "identify parameters from logs"),
+    "run": ("hostsim.sim.runner", "run one scenario file: metrics.json, plots, summary"),
+    "sim": ("hostsim.studies.sim_study", "the paper's scenarios + robustness summary -> out/sim/ (make sim)"),
+    "montecarlo": ("hostsim.studies.montecarlo", "Monte Carlo robustness of the firmware in the loop"),
+    "roa": ("hostsim.studies.roa", "region of attraction (largest recovered initial angles)"),
+    "bench": ("hostsim.studies.sim_bench", "simulation speed: real-time factor, Monte Carlo throughput"),
+    "replay": ("hostsim.logs.replay", "replay a robot log on the host"),
+    "identify": ("hostsim.logs.identify", "identify parameters from logs"),
 }
 
 

@@ -1,7 +1,7 @@
 """Fixtures shared by several test modules."""
 import pytest
 
-from hostsim.fake_ev3 import FakeEV3
+from hostsim.world.fake_ev3 import FakeEV3
 
 
 @pytest.fixture

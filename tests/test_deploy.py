@@ -343,7 +343,7 @@ class FakeRobot(object):
 
     def __init__(self, root, scenario, config, duration_s=60):
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "hostsim.fake_robot", "--root", root, "--scenario", scenario,
+            [sys.executable, "-m", "hostsim.sim.fake_robot", "--root", root, "--scenario", scenario,
              "--write-config", config, "--duration", str(duration_s)],
             cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, universal_newlines=True)
         self.lines = []
@@ -417,7 +417,7 @@ def test_run_on_the_brick_fetch_the_log_and_replay_it_exactly(brick, tmp_path):
     assert rows[:, logfile.col("gyro_rate")].std() > 0
 
     plots = str(tmp_path / "plots")
-    rp = subprocess.run([sys.executable, "-m", "hostsim.replay", logs[0], "--out", plots], cwd=REPO,
+    rp = subprocess.run([sys.executable, "-m", "hostsim.logs.replay", logs[0], "--out", plots], cwd=REPO,
                         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, universal_newlines=True, timeout=120)
     assert rp.returncode == 0, rp.stdout
     assert "replay with the logged gains (%s" % os.path.join(dest, "gains-") in rp.stdout
@@ -437,8 +437,8 @@ def test_run_and_logs_before_any_deploy_say_to_deploy_first(brick, tmp_path):
 
 
 def test_the_real_time_fake_robot_holds_the_robot_until_the_firmware_drives_a_motor(tmp_path):
-    from hostsim.fake_robot import RealTimeRobot
-    from hostsim.scenario import parse_scenario
+    from hostsim.sim.fake_robot import RealTimeRobot
+    from hostsim.sim.scenario import parse_scenario
     from tipbot_fw.ev3io import Ev3Devices
 
     sc = parse_scenario({"x0_si": [0, 0, 0.05, 0, 0, 0, 0, 0, 0, 0]}, "<test>")

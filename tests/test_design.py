@@ -7,11 +7,11 @@ import sys
 import numpy as np
 import pytest
 
-from hostsim import design
+from hostsim.model import design
 from hostsim.errors import DesignError
-from hostsim.gains import DEFAULT_OUT_DIR, design_gains, dumps, main as gains_main, to_document
-from hostsim.paper_check import TOLERANCE, cross_spectral_radii, run as paper_check_run
-from hostsim.params import REPO_ROOT, load_params
+from hostsim.model.gains import DEFAULT_OUT_DIR, design_gains, dumps, main as gains_main, to_document
+from hostsim.model.paper_check import TOLERANCE, cross_spectral_radii, run as paper_check_run
+from hostsim.model.params import REPO_ROOT, load_params
 
 VARIANTS = ("paper", "physical")
 
@@ -203,7 +203,7 @@ def test_bad_parameter_files_are_named(tmp_path, mutate, message):
     with pytest.raises(Exception, match=message):
         load_params(path)
     # The command line ends with one line naming the cause, exit status 2.
-    proc = subprocess.run([sys.executable, "-m", "hostsim.gains", "--params", path, "--out-dir", str(tmp_path)],
+    proc = subprocess.run([sys.executable, "-m", "hostsim.model.gains", "--params", path, "--out-dir", str(tmp_path)],
                           capture_output=True, text=True, cwd=REPO_ROOT)
     assert proc.returncode == 2
     assert proc.stderr.strip().count("\n") == 0 and message in proc.stderr

@@ -12,7 +12,7 @@ import textwrap
 import numpy as np
 import pytest
 
-from hostsim.fake_ev3 import FakeEV3
+from hostsim.world.fake_ev3 import FakeEV3
 from tipbot_fw import config as fw_config
 from tipbot_fw.ev3io import (Ev3Devices, Ev3ReadError, Ev3SetupError, Ev3WriteError)
 
@@ -291,7 +291,7 @@ def test_close_stops_the_motors_and_closes_every_descriptor(fake, config):
 # ---------------------------------------------------------------- across processes
 WRITER = textwrap.dedent('''
     import os, sys
-    from hostsim.fake_ev3 import FakeEV3
+    from hostsim.world.fake_ev3 import FakeEV3
     root, stop_file = sys.argv[1], sys.argv[2]
     COUNTS = (-1234567, 8, 99999, -5, 0, 7654321, 42, -100000)
     ANGLES = (1, -300, 32000, -32000, 255, -256, 0, 77)

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import fw_support as S
-from hostsim.fake_ev3 import FakeEV3
+from hostsim.world.fake_ev3 import FakeEV3
 from tipbot_fw import cli
 from tipbot_fw.logfile import col, read_log
 

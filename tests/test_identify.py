@@ -15,9 +15,9 @@ import sys
 import numpy as np
 import pytest
 
-from hostsim import gains as host_gains
-from hostsim import identify as I
-from hostsim.motor_sim import TABLE2, one_motor_fake, simulate_identify
+from hostsim.model import gains as host_gains
+from hostsim.logs import identify as I
+from hostsim.world.motor_sim import TABLE2, one_motor_fake, simulate_identify
 from tipbot_fw import cli, logfile
 from tipbot_fw import identify as fw
 from tipbot_fw.gains import load_gains
@@ -163,7 +163,7 @@ def test_other_files_are_refused(tmp_path):
     with pytest.raises(I.IdentifyError, match="corrupted: CRC32"):
         I.load_log(bad)
     # the balance-log replay refuses an identify log instead of misreading it
-    from hostsim import replay
+    from hostsim.logs import replay
     with pytest.raises(replay.ReplayError, match="kind 'identify', not a balance run"):
         replay.load_log(good)
 
@@ -295,7 +295,7 @@ def test_real_time_command_line_against_the_simulated_motor(tmp_path):
     process, `python3 -m tipbot_fw identify` runs in another."""
     root = str(tmp_path / "ev3")
     env = dict(os.environ, PYTHONPATH=REPO)
-    sim = subprocess.Popen([sys.executable, "-m", "hostsim.motor_sim", "--realtime", "--root", root, "--motor", "5",
+    sim = subprocess.Popen([sys.executable, "-m", "hostsim.world.motor_sim", "--realtime", "--root", root, "--motor", "5",
                             "--battery-v", "7.8", "--duration", "20"], cwd=REPO, env=env,
                            stdout=subprocess.PIPE, universal_newlines=True)
     try:

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from hostsim.model import RobotModel, get_variant
-from hostsim.params import load_params
+from hostsim.model.equations import RobotModel, get_variant
+from hostsim.model.params import load_params
 
 VARIANTS = ("paper", "physical")
 

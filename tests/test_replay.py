@@ -10,8 +10,9 @@ import zlib
 import numpy as np
 import pytest
 
-from hostsim import fil, replay
-from hostsim.scenario import parse_scenario
+from hostsim.sim import fil
+from hostsim.logs import replay
+from hostsim.sim.scenario import parse_scenario
 from tipbot_fw import logfile
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))

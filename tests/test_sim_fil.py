@@ -13,10 +13,10 @@ import math
 
 import numpy as np
 
-from hostsim.fil import run_firmware
-from hostsim.linear_sim import GainSet, simulate_linear
-from hostsim.montecarlo import gains_document
-from hostsim.scenario import load_scenario
+from hostsim.sim.fil import run_firmware
+from hostsim.sim.linear_sim import GainSet, simulate_linear
+from hostsim.studies.montecarlo import gains_document
+from hostsim.sim.scenario import load_scenario
 
 COUNT_RAD = 2 * math.pi / 360
 WINDOW_S = 1.0

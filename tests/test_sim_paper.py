@@ -10,13 +10,13 @@ import os
 import numpy as np
 import pytest
 
-from hostsim import metrics
-from hostsim.fil import run_firmware
-from hostsim.linear_sim import GainSet, simulate_linear, simulate_nonlinear
-from hostsim.params import REPO_ROOT
-from hostsim.pd import pd_for_gains
-from hostsim.runner import run_scenario, scenario_metrics
-from hostsim.scenario import load_scenario
+from hostsim.sim import metrics
+from hostsim.sim.fil import run_firmware
+from hostsim.sim.linear_sim import GainSet, simulate_linear, simulate_nonlinear
+from hostsim.model.params import REPO_ROOT
+from hostsim.model.pd import pd_for_gains
+from hostsim.sim.runner import run_scenario, scenario_metrics
+from hostsim.sim.scenario import load_scenario
 
 U_MAX = 7.6
 ACT = [0, 1, 3, 4]

@@ -5,12 +5,12 @@ import os
 import numpy as np
 import pytest
 
-from hostsim import fastdyn
-from hostsim.linear_sim import GainSet, simulate_nonlinear
-from hostsim.model import RobotModel
-from hostsim.params import REPO_ROOT, load_params
-from hostsim.plant import Plant, solve_spd5
-from hostsim.scenario import parse_scenario
+from hostsim.model import fastdyn
+from hostsim.sim.linear_sim import GainSet, simulate_nonlinear
+from hostsim.model.equations import RobotModel
+from hostsim.model.params import REPO_ROOT, load_params
+from hostsim.world.plant import Plant, solve_spd5
+from hostsim.sim.scenario import parse_scenario
 
 VARIANTS = ("paper", "physical")
 

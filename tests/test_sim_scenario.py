@@ -5,7 +5,7 @@ import os
 
 import pytest
 
-from hostsim.scenario import SCENARIO_DIR, ScenarioError, load_scenario, parse_scenario
+from hostsim.sim.scenario import SCENARIO_DIR, ScenarioError, load_scenario, parse_scenario
 
 SHIPPED = sorted(glob.glob(os.path.join(SCENARIO_DIR, "*.json")))
 

@@ -11,7 +11,7 @@ import os
 
 from hostsim.errors import ParameterError, read_json
 
-REPO_ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+REPO_ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 DEFAULT_PARAMS_PATH = os.path.join(REPO_ROOT, "params", "robot.json")
 
 MOTOR_ROLES = ("right_wheel", "left_wheel", "joint2", "joint3")

@@ -15,7 +15,7 @@ import time
 
 
 def _time_run(sc, sysfs, repeat, doc):
-    from hostsim.fil import run_firmware
+    from hostsim.sim.fil import run_firmware
     best = None
     for _ in range(repeat):
         t0 = time.perf_counter()
@@ -26,9 +26,9 @@ def _time_run(sc, sysfs, repeat, doc):
 
 
 def measure(duration_s=10.0, repeat=3, mc_runs=None, jobs=None, say=print):
-    from hostsim import montecarlo
-    from hostsim.parallel import default_jobs
-    from hostsim.scenario import load_scenario
+    from hostsim.studies import montecarlo
+    from hostsim.sim.parallel import default_jobs
+    from hostsim.sim.scenario import load_scenario
 
     base = load_scenario(montecarlo.BASE_SCENARIO)
     base["duration_s"] = float(duration_s)

@@ -33,11 +33,11 @@ import tempfile
 
 import numpy as np
 
-from hostsim.model import RobotModel, state_scale_to_si
-from hostsim.params import load_params
-from hostsim.plant import Plant
-from hostsim.scenario import disturbance_at
-from hostsim.sensors import SensorModel
+from hostsim.model.equations import RobotModel, state_scale_to_si
+from hostsim.model.params import load_params
+from hostsim.world.plant import Plant
+from hostsim.sim.scenario import disturbance_at
+from hostsim.world.sensors import SensorModel
 from tipbot_fw import config as fw_config
 from tipbot_fw import logfile
 from tipbot_fw.clock import VirtualClock
@@ -235,7 +235,7 @@ def run_firmware(sc, gains_path=None, gains_doc=None, sysfs=True, log_path=None,
     t_release = calibration_end_s(config, gains.ts_s)
     fake = None
     if sysfs:
-        from hostsim.fake_ev3 import FakeEV3
+        from hostsim.world.fake_ev3 import FakeEV3
         from tipbot_fw.ev3io import Ev3Devices
         fake = FakeEV3(battery_v=s["battery_v"])
     world = World(sc, plant, sensors, gains.ts_s, t_release, fake=fake, io_latency_s=sc["io_latency_s"], rng=rng)

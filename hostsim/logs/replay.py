@@ -36,7 +36,7 @@ from tipbot_fw import replay as fw_replay
 from tipbot_fw.config import ConfigError, config_from_overrides
 from tipbot_fw.gains import GainsError, load_gains
 
-REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 DEFAULT_OUT = os.path.join(REPO, "out", "replay")
 DEFAULT_TOL = 1e-9
 # Header fields a replay needs (docs/log-format.md); a log without them is from another version.

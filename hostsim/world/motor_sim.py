@@ -46,7 +46,7 @@ from collections import namedtuple
 
 import numpy as np
 
-from hostsim.fake_ev3 import FakeEV3
+from hostsim.world.fake_ev3 import FakeEV3
 from tipbot_fw.clock import VirtualClock
 
 _Params = namedtuple("MotorParams", "beta_nm_s ke_v_s km_nm_a ra_ohm jm_kg_m2 coulomb_nm")

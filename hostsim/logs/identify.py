@@ -76,8 +76,8 @@ from scipy.optimize import least_squares
 from scipy.signal import lfilter
 
 from hostsim.errors import TipbotError
-from hostsim.motor_sim import TABLE2, TABLE2_G
-from hostsim.params import DEFAULT_PARAMS_PATH, MOTOR_FIELDS, MOTOR_ROLES, REPO_ROOT, load_params, parse_params
+from hostsim.world.motor_sim import TABLE2, TABLE2_G
+from hostsim.model.params import DEFAULT_PARAMS_PATH, MOTOR_FIELDS, MOTOR_ROLES, REPO_ROOT, load_params, parse_params
 from tipbot_fw import identify as fw_identify
 from tipbot_fw import logfile
 

@@ -28,7 +28,7 @@ import math
 import os
 
 from hostsim.errors import TipbotError, read_json
-from hostsim.params import REPO_ROOT, REQUIRED
+from hostsim.model.params import REPO_ROOT, REQUIRED
 
 SCENARIO_DIR = os.path.join(REPO_ROOT, "scenarios")
 

@@ -13,10 +13,10 @@ import sys
 
 import numpy as np
 
-from hostsim import design
+from hostsim.model import design
 from hostsim.errors import TipbotError
-from hostsim.model import ACTUATED_INPUTS, INPUT_NAMES, STATE_NAMES, RobotModel, get_variant, state_scale_to_si
-from hostsim.params import DEFAULT_PARAMS_PATH, REPO_ROOT, load_params, params_hash
+from hostsim.model.equations import ACTUATED_INPUTS, INPUT_NAMES, STATE_NAMES, RobotModel, get_variant, state_scale_to_si
+from hostsim.model.params import DEFAULT_PARAMS_PATH, REPO_ROOT, load_params, params_hash
 
 SCHEMA_VERSION = 1
 DEFAULT_TS_S = 0.005

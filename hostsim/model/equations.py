@@ -33,7 +33,7 @@ import os
 
 import numpy as np
 
-from hostsim.params import REPO_ROOT, REQUIRED
+from hostsim.model.params import REPO_ROOT, REQUIRED
 
 Q_NAMES = ("d_r", "d_l", "th1", "th2", "th3")
 STATE_NAMES = Q_NAMES + tuple(n + "_dot" for n in Q_NAMES)

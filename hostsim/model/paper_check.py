@@ -12,9 +12,9 @@ import sys
 
 import numpy as np
 
-from hostsim.gains import design_gains
-from hostsim.model import state_scale_to_si
-from hostsim.params import load_params
+from hostsim.model.gains import design_gains
+from hostsim.model.equations import state_scale_to_si
+from hostsim.model.params import load_params
 
 APPENDIX_C = os.path.join(os.path.dirname(os.path.abspath(__file__)), "data", "paper_appendix_c.json")
 TOLERANCE = 0.02

@@ -23,7 +23,7 @@ import time
 
 import numpy as np
 
-from hostsim.params import REPO_ROOT
+from hostsim.model.params import REPO_ROOT
 
 ANGLES = {"th1": 2, "th2": 3, "th3": 4}
 RECOVERED_TH1_RAD = 0.05
@@ -40,7 +40,7 @@ def angle_limits():
 
 
 def recovered(run):
-    from hostsim.metrics import UPRIGHT_LIMIT_RAD
+    from hostsim.sim.metrics import UPRIGHT_LIMIT_RAD
     x = run["x"]
     return bool(run.get("completed", True) and np.all(np.abs(x[:, 2]) < UPRIGHT_LIMIT_RAD)
                 and abs(x[-1, 2]) < RECOVERED_TH1_RAD and np.all(np.abs(x[-1, 3:5]) < RECOVERED_TH23_RAD))
@@ -48,9 +48,9 @@ def recovered(run):
 
 def trial(base, gains_path, zero_kw, mode, angle, value):
     """One release from `angle` = value: recovered or not."""
-    from hostsim.fil import run_firmware
-    from hostsim.linear_sim import GainSet, simulate_nonlinear
-    from hostsim.montecarlo import gains_document
+    from hostsim.sim.fil import run_firmware
+    from hostsim.sim.linear_sim import GainSet, simulate_nonlinear
+    from hostsim.studies.montecarlo import gains_document
 
     sc = dict(base)
     x0 = [0.0] * 10
@@ -98,9 +98,9 @@ def run_roa(gains_paths=DEFAULT_GAINS, modes=DEFAULT_MODES, tol=0.01, kw0=False,
             base=None, duration_s=None, kw0_modes=None):
     """Bisections for every gains file x mode x angle x sign (kw0: also K_w = 0 twins, in
     kw0_modes, default the same modes)."""
-    from hostsim.montecarlo import variants, warm_models
-    from hostsim.parallel import run_tasks
-    from hostsim.scenario import load_scenario
+    from hostsim.studies.montecarlo import variants, warm_models
+    from hostsim.sim.parallel import run_tasks
+    from hostsim.sim.scenario import load_scenario
 
     base = dict(base or load_scenario(BASE_SCENARIO))
     if duration_s is not None:
@@ -142,7 +142,7 @@ def format_table(res):
 
 
 def write(res, out_dir):
-    from hostsim import plots
+    from hostsim.studies import plots
     os.makedirs(out_dir, exist_ok=True)
     with open(os.path.join(out_dir, "roa.json"), "w") as f:
         json.dump(res, f, indent=1, sort_keys=True)

@@ -14,8 +14,8 @@ import math
 
 import numpy as np
 
-from hostsim import fastdyn
-from hostsim.model import RobotModel, state_scale_to_si
+from hostsim.model import fastdyn
+from hostsim.model.equations import RobotModel, state_scale_to_si
 
 DEFAULT_DT_S = 1e-3
 METHODS = ("rk4", "heun")

@@ -10,10 +10,10 @@ import time
 
 import numpy as np
 
-from hostsim import metrics as metrics_mod
-from hostsim.fil import pd_gains_document, run_firmware
-from hostsim.linear_sim import GainSet, simulate_linear, simulate_nonlinear
-from hostsim.pd import pd_for_gains
+from hostsim.sim import metrics as metrics_mod
+from hostsim.sim.fil import pd_gains_document, run_firmware
+from hostsim.sim.linear_sim import GainSet, simulate_linear, simulate_nonlinear
+from hostsim.model.pd import pd_for_gains
 
 
 def run_scenario(sc, modes=None, sysfs=True, say=None):
@@ -79,7 +79,7 @@ def run_and_write(sc, out_dir, modes=None, sysfs=True, plots=True, say=None):
         json.dump(doc, f, indent=1, sort_keys=True)
     np.savez_compressed(os.path.join(out_dir, "runs.npz"), **_flatten(runs))
     if plots:
-        from hostsim import plots as plots_mod
+        from hostsim.studies import plots as plots_mod
         doc["plots"] = plots_mod.scenario_plots(sc, runs, gs.u_max_v, out_dir)
         with open(os.path.join(out_dir, "metrics.json"), "w") as f:
             json.dump(doc, f, indent=1, sort_keys=True)
@@ -136,8 +136,8 @@ def main(argv=None):
     import sys
 
     from hostsim.errors import TipbotError
-    from hostsim.params import REPO_ROOT
-    from hostsim.scenario import MODES, load_scenario
+    from hostsim.model.params import REPO_ROOT
+    from hostsim.sim.scenario import MODES, load_scenario
 
     ap = argparse.ArgumentParser(prog="python -m hostsim run", description="Run one scenario file.")
     ap.add_argument("scenario", help="scenario JSON file, or a name under scenarios/")

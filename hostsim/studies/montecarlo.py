@@ -29,7 +29,7 @@ import time
 
 import numpy as np
 
-from hostsim.params import MOTOR_ROLES, REPO_ROOT
+from hostsim.model.params import MOTOR_ROLES, REPO_ROOT
 
 GEOMETRY = ("m1_kg", "m2_kg", "m3_kg", "mw_kg", "l1_m", "l2_m", "l3_m", "rw_m", "track_m",
             "j1_kg_m2", "j2_kg_m2", "j3_kg_m2", "jw_kg_m2") + tuple(r + "_jm_kg_m2" for r in MOTOR_ROLES)
@@ -94,8 +94,8 @@ def gains_document(path, zero_kw):
 
 def run_one(task):
     """Worker: one Monte Carlo run -> a JSON-ready row."""
-    from hostsim.fil import run_firmware
-    from hostsim.metrics import UPRIGHT_LIMIT_RAD
+    from hostsim.sim.fil import run_firmware
+    from hostsim.sim.metrics import UPRIGHT_LIMIT_RAD
 
     label, gains_path, zero_kw, base, index, seed, duration_s = task
     d = draw(np.random.default_rng([seed, index]))
@@ -133,8 +133,8 @@ def variants(gains_paths, kw0, only_kw0=False):
 
 def warm_models(plant_variants=("physical",)):
     """Generate the model code cache once, before the workers would race to."""
-    from hostsim.model import RobotModel
-    from hostsim.params import load_params
+    from hostsim.model.equations import RobotModel
+    from hostsim.model.params import load_params
     for v in plant_variants:
         RobotModel(v, load_params())
 
@@ -142,8 +142,8 @@ def warm_models(plant_variants=("physical",)):
 def run_montecarlo(runs=200, duration_s=None, gains_paths=DEFAULT_GAINS, kw0=False, jobs=None, seed=0,
                    base=None, desc="Monte Carlo", only_kw0=False):
     """-> {label: {"runs": [rows], "summary": {...}}, "_meta": {...}}."""
-    from hostsim.parallel import default_jobs, run_tasks
-    from hostsim.scenario import load_scenario
+    from hostsim.sim.parallel import default_jobs, run_tasks
+    from hostsim.sim.scenario import load_scenario
 
     base = base or load_scenario(BASE_SCENARIO)
     tasks = [(label, path, zk, base, i, seed, duration_s)
@@ -216,7 +216,7 @@ def format_table(results):
 
 
 def write(results, out_dir):
-    from hostsim import plots
+    from hostsim.studies import plots
     os.makedirs(out_dir, exist_ok=True)
     with open(os.path.join(out_dir, "montecarlo.json"), "w") as f:
         json.dump(results, f, indent=1, sort_keys=True)

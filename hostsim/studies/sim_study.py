@@ -11,14 +11,14 @@ import os
 import sys
 import time
 
-from hostsim.params import REPO_ROOT
+from hostsim.model.params import REPO_ROOT
 
 SCENARIOS = ("section7", "section8", "appendix_d", "section8_physical")
 GAINS = ("paper", "physical")
 
 
 def ensure_gains(say):
-    from hostsim import gains
+    from hostsim.model import gains
     for name in GAINS:
         path = os.path.join(gains.DEFAULT_OUT_DIR, name + ".json")
         if not os.path.exists(path):
@@ -55,8 +55,11 @@ def firmware_note(docs, mc):
 
 
 def main(argv=None):
-    from hostsim import montecarlo, report, roa, runner
-    from hostsim.scenario import load_scenario
+    from hostsim.studies import montecarlo
+    from hostsim.studies import report
+    from hostsim.studies import roa
+    from hostsim.sim import runner
+    from hostsim.sim.scenario import load_scenario
 
     ap = argparse.ArgumentParser(prog="python -m hostsim sim", description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", default=os.path.join(REPO_ROOT, "out", "sim"))

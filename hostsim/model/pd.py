@@ -39,7 +39,7 @@ from scipy.linalg import solve_discrete_lyapunov
 from scipy.optimize import minimize
 
 from hostsim.errors import DesignError
-from hostsim.params import REPO_ROOT
+from hostsim.model.params import REPO_ROOT
 
 CACHE_DIR = os.path.join(REPO_ROOT, ".cache", "pd")
 
