@@ -9,7 +9,7 @@ import importlib
 import sys
 
 COMMANDS = {
-    "run": ("hostsim.sim.runner", "run one scenario file: metrics.json, plots, summary"),
+    "run": ("hostsim.studies.runner", "run one scenario file: metrics.json, plots, summary"),
     "sim": ("hostsim.studies.sim_study", "the paper's scenarios + robustness summary -> out/sim/ (make sim)"),
     "montecarlo": ("hostsim.studies.montecarlo", "Monte Carlo robustness of the firmware in the loop"),
     "roa": ("hostsim.studies.roa", "region of attraction (largest recovered initial angles)"),

@@ -11,7 +11,8 @@ from hostsim.model import design
 from hostsim.errors import DesignError
 from hostsim.model.gains import DEFAULT_OUT_DIR, design_gains, dumps, main as gains_main, to_document
 from hostsim.model.paper_check import TOLERANCE, cross_spectral_radii, run as paper_check_run
-from hostsim.model.params import REPO_ROOT, load_params
+from hostsim.model.params import load_params
+from hostsim.paths import REPO_ROOT
 
 VARIANTS = ("paper", "physical")
 

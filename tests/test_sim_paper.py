@@ -13,9 +13,9 @@ import pytest
 from hostsim.sim import metrics
 from hostsim.sim.fil import run_firmware
 from hostsim.sim.linear_sim import GainSet, simulate_linear, simulate_nonlinear
-from hostsim.model.params import REPO_ROOT
+from hostsim.paths import REPO_ROOT
 from hostsim.model.pd import pd_for_gains
-from hostsim.sim.runner import run_scenario, scenario_metrics
+from hostsim.studies.runner import run_scenario, scenario_metrics
 from hostsim.sim.scenario import load_scenario
 
 U_MAX = 7.6

@@ -8,7 +8,8 @@ import pytest
 from hostsim.model import fastdyn
 from hostsim.sim.linear_sim import GainSet, simulate_nonlinear
 from hostsim.model.equations import RobotModel
-from hostsim.model.params import REPO_ROOT, load_params
+from hostsim.model.params import load_params
+from hostsim.paths import REPO_ROOT
 from hostsim.world.plant import Plant, solve_spd5
 from hostsim.sim.scenario import parse_scenario
 

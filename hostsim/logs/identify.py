@@ -76,16 +76,14 @@ from scipy.optimize import least_squares
 from scipy.signal import lfilter
 
 from hostsim.errors import TipbotError
-from hostsim.world.motor_sim import TABLE2, TABLE2_G
-from hostsim.model.params import DEFAULT_PARAMS_PATH, MOTOR_FIELDS, MOTOR_ROLES, REPO_ROOT, load_params, parse_params
+from hostsim.model.motors import DRIVER_MOTOR, ROLE_MOTOR, TABLE2, TABLE2_G
+from hostsim.model.params import DEFAULT_PARAMS_PATH, MOTOR_FIELDS, MOTOR_ROLES, load_params, parse_params
+from hostsim.paths import out_dir
 from tipbot_fw import identify as fw_identify
 from tipbot_fw import logfile
 
-DEFAULT_OUT = os.path.join(REPO_ROOT, "out", "identify")
+DEFAULT_OUT = out_dir("identify")
 DEG = math.pi / 180.0
-#: Table 2 motor of each role (shared/paper/README.md).
-ROLE_MOTOR = {"right_wheel": 1, "left_wheel": 2, "joint2": 3, "joint3": 5}
-DRIVER_MOTOR = {"lego-ev3-l-motor": 1, "lego-ev3-m-motor": 5}
 
 # Limits of a usable log.
 MIN_DRIVE_ROWS = 20          # rows in the drive phase

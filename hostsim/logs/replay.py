@@ -36,8 +36,9 @@ from tipbot_fw import replay as fw_replay
 from tipbot_fw.config import ConfigError, config_from_overrides
 from tipbot_fw.gains import GainsError, load_gains
 
-REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-DEFAULT_OUT = os.path.join(REPO, "out", "replay")
+from hostsim.paths import GAINS_DIR, out_dir
+
+DEFAULT_OUT = out_dir("replay")
 DEFAULT_TOL = 1e-9
 # Header fields a replay needs (docs/log-format.md); a log without them is from another version.
 REQUIRED_HEADER = ("gains", "config", "calibration", "counts_per_rot", "first_tick", "ts_s")
@@ -128,7 +129,7 @@ def gains_candidates(log_path, header, explicit=()):
     logged_path = header.get("gains", {}).get("path")
     if logged_path:
         out.append(logged_path)
-    out += sorted(glob.glob(os.path.join(REPO, "gains", "*.json")))
+    out += sorted(glob.glob(os.path.join(GAINS_DIR, "*.json")))
     seen, unique = set(), []
     for p in out:
         key = os.path.abspath(p)

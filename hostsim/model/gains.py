@@ -16,11 +16,12 @@ import numpy as np
 from hostsim.model import design
 from hostsim.errors import TipbotError
 from hostsim.model.equations import ACTUATED_INPUTS, INPUT_NAMES, STATE_NAMES, RobotModel, get_variant, state_scale_to_si
-from hostsim.model.params import DEFAULT_PARAMS_PATH, REPO_ROOT, load_params, params_hash
+from hostsim.model.params import DEFAULT_PARAMS_PATH, load_params, params_hash
+from hostsim.paths import GAINS_DIR
 
 SCHEMA_VERSION = 1
 DEFAULT_TS_S = 0.005
-DEFAULT_OUT_DIR = os.path.join(REPO_ROOT, "gains")
+DEFAULT_OUT_DIR = GAINS_DIR
 VARIANT_NAMES = ("paper", "physical")
 # The physical gains must also stabilize the paper's model: the two bracket what is least
 # certain about the drivetrain (rotor inertia Jm from 0 to Table 2's value, the wheel

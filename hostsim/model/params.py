@@ -10,8 +10,8 @@ import math
 import os
 
 from hostsim.errors import ParameterError, read_json
+from hostsim.paths import REPO_ROOT
 
-REPO_ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 DEFAULT_PARAMS_PATH = os.path.join(REPO_ROOT, "params", "robot.json")
 
 MOTOR_ROLES = ("right_wheel", "left_wheel", "joint2", "joint3")
@@ -57,6 +57,14 @@ def parse_params(doc, source="<parameters>"):
 def load_params(path=DEFAULT_PARAMS_PATH):
     """Read and validate a parameters file; errors name the file and the field."""
     return parse_params(read_json(path, "parameters file", ParameterError), source=path)
+
+
+def scaled_params(scale, params=None):
+    """Parameters (default: the parameters file's) with multipliers applied: {name: factor}."""
+    p = dict(load_params() if params is None else params)
+    for name, factor in scale.items():
+        p[name] = p[name] * factor
+    return p
 
 
 def params_hash(values):

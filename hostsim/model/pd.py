@@ -39,9 +39,9 @@ from scipy.linalg import solve_discrete_lyapunov
 from scipy.optimize import minimize
 
 from hostsim.errors import DesignError
-from hostsim.model.params import REPO_ROOT
+from hostsim.paths import CACHE_DIR as _CACHE, GAINS_DIR, REPO_ROOT
 
-CACHE_DIR = os.path.join(REPO_ROOT, ".cache", "pd")
+CACHE_DIR = os.path.join(_CACHE, "pd")
 
 # For each free gain, the (row of K, column of x, coefficient) cells it fills.
 LAYOUT = (
@@ -135,7 +135,7 @@ def pd_for_gains(path):
 
 def main(argv=None):
     argv = sys.argv[1:] if argv is None else argv
-    paths = argv or [os.path.join(REPO_ROOT, "gains", v + ".json") for v in ("paper", "physical")]
+    paths = argv or [os.path.join(GAINS_DIR, v + ".json") for v in ("paper", "physical")]
     for path in paths:
         pd = pd_for_gains(path)
         print("%s: PD cost %.6g, LQR cost %.6g (x%.3f), spectral radius %.5f"

@@ -43,9 +43,9 @@ import time
 import numpy as np
 
 from hostsim.world.fake_ev3 import DEFAULT_MOTOR_PORTS, FakeEV3
-from hostsim.sim.fil import MODEL_INPUT, ROLES, firmware_config, scaled_params
+from hostsim.sim.fil import MODEL_INPUT, ROLES, firmware_config
 from hostsim.model.equations import RobotModel, state_scale_to_si
-from hostsim.model.params import load_params
+from hostsim.model.params import load_params, scaled_params
 from hostsim.world.plant import Plant
 from hostsim.sim.scenario import disturbance_at, load_scenario, parse_scenario
 from hostsim.world.sensors import SensorModel

@@ -34,7 +34,7 @@ import tempfile
 import numpy as np
 
 from hostsim.model.equations import RobotModel, state_scale_to_si
-from hostsim.model.params import load_params
+from hostsim.model.params import load_params, scaled_params
 from hostsim.world.plant import Plant
 from hostsim.sim.scenario import disturbance_at
 from hostsim.world.sensors import SensorModel
@@ -50,14 +50,6 @@ MODEL_INPUT = (0, 1, 3, 4)   # u index of each role
 DEFAULT_IO_LATENCY_S = 0.002
 PLANT_DT_S = 0.001
 _EPS_S = 1e-9
-
-
-def scaled_params(scale, params=None):
-    """Parameters with the scenario's multipliers applied."""
-    p = dict(load_params() if params is None else params)
-    for name, factor in scale.items():
-        p[name] = p[name] * factor
-    return p
 
 
 def firmware_config(sc, rw_m, overrides=None):

@@ -13,6 +13,7 @@ import json
 import numpy as np
 
 from hostsim.model import design
+from hostsim.model.params import scaled_params
 from hostsim.model.equations import RobotModel, get_variant, state_scale_to_si
 from hostsim.world.plant import Plant
 from hostsim.sim.scenario import disturbance_at
@@ -98,7 +99,6 @@ def truth_linear_model(g, sc, params=None):
     """
     if sc["plant_variant"] == g.variant and not sc["param_scale"]:
         return g.A, g.B
-    from hostsim.sim.fil import scaled_params
     return design.discrete_model_si(RobotModel(sc["plant_variant"], scaled_params(sc["param_scale"], params)),
                                     g.ts_s)
 
@@ -154,7 +154,6 @@ def simulate_nonlinear(g, sc, k_pd=None, params=None, fall_rad=np.pi / 2):
     Stops early (completed=False) when |th1| passes fall_rad: the model means nothing once
     the robot lies on the floor.
     """
-    from hostsim.sim.fil import scaled_params
     model = RobotModel(sc["plant_variant"], scaled_params(sc["param_scale"], params))
     to_si = np.diag(state_scale_to_si(model.variant))
     plant = Plant(model, np.array(sc["x0_si"]) / to_si, dt_s=PLANT_DT_S, method=sc["plant_method"])

@@ -28,7 +28,8 @@ import math
 import os
 
 from hostsim.errors import TipbotError, read_json
-from hostsim.model.params import REPO_ROOT, REQUIRED
+from hostsim.model.params import REQUIRED
+from hostsim.paths import REPO_ROOT
 
 SCENARIO_DIR = os.path.join(REPO_ROOT, "scenarios")
 

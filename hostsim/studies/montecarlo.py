@@ -29,7 +29,9 @@ import time
 
 import numpy as np
 
-from hostsim.model.params import MOTOR_ROLES, REPO_ROOT
+from hostsim.model.params import MOTOR_ROLES
+from hostsim.paths import REPO_ROOT, out_dir
+from hostsim.studies.stats import distribution, trio
 
 GEOMETRY = ("m1_kg", "m2_kg", "m3_kg", "mw_kg", "l1_m", "l2_m", "l3_m", "rw_m", "track_m",
             "j1_kg_m2", "j2_kg_m2", "j3_kg_m2", "jw_kg_m2") + tuple(r + "_jm_kg_m2" for r in MOTOR_ROLES)
@@ -163,10 +165,6 @@ def run_montecarlo(runs=200, duration_s=None, gains_paths=DEFAULT_GAINS, kw0=Fal
     return out
 
 
-def _pct(values, q):
-    return float(np.percentile(values, q)) if len(values) else None
-
-
 def summarize(rows):
     n = len(rows)
     ok = [r for r in rows if r["success"]]
@@ -185,15 +183,10 @@ def summarize(rows):
         "runs": n, "successes": len(ok), "success_rate": len(ok) / n if n else None,
         "refused": n - len(started), "failures_by_reason": reasons,
         "success_rate_by_extra_delay": by_delay,
-        "peak_abs_th1_rad": {"median": _pct(tilt, 50), "p95": _pct(tilt, 95), "max": max(tilt) if tilt else None},
-        "peak_abs_u_v": {"median": _pct(volt, 50), "p95": _pct(volt, 95), "max": max(volt) if volt else None},
+        "peak_abs_th1_rad": distribution(tilt),
+        "peak_abs_u_v": distribution(volt),
         "mean_wall_s": float(np.mean([r["wall_s"] for r in rows])) if rows else None,
     }
-
-
-def trio(d, fmt, sep="/"):
-    """'median/p95/max' of a distribution summary ('-' where there were no runs)."""
-    return sep.join("-" if d[k] is None else fmt % d[k] for k in ("median", "p95", "max"))
 
 
 def format_table(results):
@@ -232,7 +225,7 @@ def main(argv=None):
     ap.add_argument("--kw0", action="store_true", help="also run each gains file with K_w = 0 (diagnosis)")
     ap.add_argument("--jobs", type=int, default=None, help="worker processes (default: all cores)")
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--out", default=os.path.join(REPO_ROOT, "out", "montecarlo"))
+    ap.add_argument("--out", default=out_dir("montecarlo"))
     args = ap.parse_args(argv)
     if args.runs < 1:
         ap.error("--runs must be at least 1")

@@ -10,7 +10,7 @@ import os
 
 import numpy as np
 
-from hostsim.studies.montecarlo import trio
+from hostsim.studies.stats import trio
 
 CM = 100.0
 
@@ -113,7 +113,7 @@ def _md(text):
 
 
 def summary_table(docs):
-    from hostsim.sim.runner import SUMMARY_COLUMNS, summary_rows
+    from hostsim.studies.runner import SUMMARY_COLUMNS, summary_rows
     head = ["scenario"] + [_md(name) for name, _ in SUMMARY_COLUMNS]
     out = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for doc in docs:

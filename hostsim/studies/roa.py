@@ -23,7 +23,7 @@ import time
 
 import numpy as np
 
-from hostsim.model.params import REPO_ROOT
+from hostsim.paths import out_dir
 
 ANGLES = {"th1": 2, "th2": 3, "th3": 4}
 RECOVERED_TH1_RAD = 0.05
@@ -156,7 +156,7 @@ def main(argv=None):
     ap.add_argument("--tol", type=float, default=0.01, help="bisection resolution in rad (default 0.01)")
     ap.add_argument("--kw0", action="store_true", help="also run each gains file with K_w = 0 (diagnosis)")
     ap.add_argument("--jobs", type=int, default=None)
-    ap.add_argument("--out", default=os.path.join(REPO_ROOT, "out", "roa"))
+    ap.add_argument("--out", default=out_dir("roa"))
     args = ap.parse_args(argv)
     modes = [m.strip() for m in args.modes.split(",") if m.strip()]
     bad = [m for m in modes if m not in DEFAULT_MODES]

@@ -11,7 +11,7 @@ import os
 import sys
 import time
 
-from hostsim.model.params import REPO_ROOT
+from hostsim.paths import REPO_ROOT, out_dir
 
 SCENARIOS = ("section7", "section8", "appendix_d", "section8_physical")
 GAINS = ("paper", "physical")
@@ -58,11 +58,11 @@ def main(argv=None):
     from hostsim.studies import montecarlo
     from hostsim.studies import report
     from hostsim.studies import roa
-    from hostsim.sim import runner
+    from hostsim.studies import runner
     from hostsim.sim.scenario import load_scenario
 
     ap = argparse.ArgumentParser(prog="python -m hostsim sim", description=__doc__.split("\n\n")[0])
-    ap.add_argument("--out", default=os.path.join(REPO_ROOT, "out", "sim"))
+    ap.add_argument("--out", default=out_dir("sim"))
     ap.add_argument("--scenarios", nargs="+", default=list(SCENARIOS))
     ap.add_argument("--device", choices=("sysfs", "memory"), default="sysfs",
                     help="firmware device layer for the scenarios (default: the fake EV3 sysfs tree)")

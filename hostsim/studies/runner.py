@@ -136,7 +136,7 @@ def main(argv=None):
     import sys
 
     from hostsim.errors import TipbotError
-    from hostsim.model.params import REPO_ROOT
+    from hostsim.paths import out_dir
     from hostsim.sim.scenario import MODES, load_scenario
 
     ap = argparse.ArgumentParser(prog="python -m hostsim run", description="Run one scenario file.")
@@ -155,7 +155,7 @@ def main(argv=None):
             bad = [m for m in modes if m not in sc["modes"]]
             if bad:
                 raise TipbotError("--modes: %r is not a mode of scenario %s (%s)" % (bad[0], sc["name"], ", ".join(sc["modes"])))
-        out = args.out or os.path.join(REPO_ROOT, "out", "run", sc["name"])
+        out = args.out or out_dir("run", sc["name"])
         doc = run_and_write(sc, out, modes, sysfs=args.device == "sysfs", plots=not args.no_plots,
                             say=lambda m: print(m, file=sys.stderr))
     except TipbotError as exc:
