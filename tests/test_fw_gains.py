@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 import fw_support as S
+from tipbot_fw import logfile
 from tipbot_fw.gains import GainsError, gains_from_dict, load_gains
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -72,10 +73,10 @@ def test_unknown_schema_version(tmp_path):
 
 
 def test_unknown_units(tmp_path):
-    units = list(S.SI_UNITS)
+    units = list(logfile.STATE_UNITS)
     units[0] = 'mm'
     refused(tmp_path, doc_with(state_units=units), r"field state_units\[0\] is 'mm', expected one of cm, m")
-    units = list(S.SI_UNITS)
+    units = list(logfile.STATE_UNITS)
     units[2] = 'deg'
     refused(tmp_path, doc_with(state_units=units), r"field state_units\[2\] is 'deg', expected one of rad")
     refused(tmp_path, doc_with(input_units=['V', 'V', 'V', 'mV', 'V']), r"field input_units\[3\] is 'mV'")

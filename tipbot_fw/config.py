@@ -36,7 +36,8 @@ import os
 
 DEFAULT_PATH = os.path.join(os.path.dirname(os.path.abspath(__file__)), 'default_config.json')
 
-MOTORS = ('right_wheel', 'left_wheel', 'joint2', 'joint3')
+# The four motors' roles, in the order of every per-motor tuple (duties, counts, polarities).
+MOTOR_ROLES = ('right_wheel', 'left_wheel', 'joint2', 'joint3')
 
 
 class ConfigError(ValueError):
@@ -170,8 +171,8 @@ def validate(config, source):
     missing = sorted(set(SPEC) - seen)
     if missing:
         raise ConfigError('{}: field {}: missing'.format(source, missing[0]))
-    ports = [config['ports'][m] for m in MOTORS]
-    for i, m in enumerate(MOTORS):
+    ports = [config['ports'][m] for m in MOTOR_ROLES]
+    for i, m in enumerate(MOTOR_ROLES):
         if ports.count(ports[i]) > 1:
             raise ConfigError('{}: field ports.{}: port {} is used by two motors'.format(
                 source, m, ports[i]))
@@ -179,7 +180,7 @@ def validate(config, source):
 
 def motor_polarity(config):
     """The 4 motor polarities in motor order (right wheel, left wheel, joint 2, joint 3)."""
-    return tuple(config['polarity'][m] for m in MOTORS)
+    return tuple(config['polarity'][m] for m in MOTOR_ROLES)
 
 
 def _read_json(path):

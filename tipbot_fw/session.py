@@ -14,7 +14,8 @@ from tipbot_fw.calibration import calibrate_gyro
 from tipbot_fw.config import motor_polarity
 from tipbot_fw.core import Core
 from tipbot_fw.loop import ControlLoop
-from tipbot_fw.safety import EXIT_ERROR, EXIT_OK, DeviceFailure, LowBattery, SignalGuard, outcome
+from tipbot_fw.console import say
+from tipbot_fw.safety import EXIT_ERROR, EXIT_OK, DeviceFailure, LowBattery, run_guarded
 
 
 def base_header(gains, config, duration_s):
@@ -36,68 +37,50 @@ def base_header(gains, config, duration_s):
     }
 
 
-def _say(msg):
-    sys.stderr.write('tipbot: {}\n'.format(msg))
-    sys.stderr.flush()
-
-
 def run_session(devices, gains, config, clock, log_path=None, duration_s=None,
-                realtime_priority=None, say=_say):
+                realtime_priority=None, say=say):
     """Balance until duration_s (None: until stopped). -> (exit code, log header dict).
 
-    Never raises; devices.stop_all() is called on every exit. The log (if log_path) is written
-    on every exit too, with the rows recorded so far.
+    Never raises; devices.stop_all() is called on every exit (tipbot_fw.safety.run_guarded).
+    The log (if log_path) is written on every exit too, with the rows recorded so far.
     """
     if realtime_priority is None:
         realtime_priority = config['realtime_priority']
     header = base_header(gains, config, duration_s)
     header['counts_per_rot'] = list(devices.counts_per_rot)
     log = logfile.LogBuffer(_log_rows(config, gains.ts_s, duration_s))
-    loop = None
-    core = None
-    error = None
-    guard = SignalGuard()
-    try:
+    run = {}    # what body() got to build: the core and the loop
+
+    def body():
+        lim = config['limits']
         try:
-            guard.install()
-            lim = config['limits']
-            try:
-                bv = devices.read_battery_v()
-            except (OSError, ValueError) as e:
-                raise DeviceFailure('battery read failed: {}'.format(e))
-            header['battery_v_start'] = bv
-            if bv < lim['min_battery_v']:
-                raise LowBattery('battery at {:.2f} V is below limits.min_battery_v = {} V: charge it'.format(
-                    bv, lim['min_battery_v']))
-            cal = calibrate_gyro(devices, clock, gains.ts_s, config['gyro_calibration'])
-            header['calibration'] = cal.as_dict()
-            core = Core(gains, config, cal.gyro_bias_dps, devices.counts_per_rot)
-            loop = ControlLoop(devices, core, clock, log, gains.ts_s, bv,
-                               battery_period_s=config['battery_period_s'],
-                               max_consecutive_overruns=lim['max_consecutive_overruns'],
-                               duration_s=duration_s, realtime_priority=realtime_priority)
-            loop.run()
-        except BaseException as e:
-            error = e
-        finally:
-            guard.disarm()
-    finally:
-        try:
-            devices.stop_all()
-        except Exception as e:   # stop_all must not raise; if it does, say so loudly
-            say('stop_all failed: {!r}'.format(e))
-    # From here on a signal is only counted (guard disarmed): the log gets written.
-    try:
-        reason, code, msg = outcome(error)
+            bv = devices.read_battery_v()
+        except (OSError, ValueError) as e:
+            raise DeviceFailure('battery read failed: {}'.format(e))
+        header['battery_v_start'] = bv
+        if bv < lim['min_battery_v']:
+            raise LowBattery('battery at {:.2f} V is below limits.min_battery_v = {} V: charge it'.format(
+                bv, lim['min_battery_v']))
+        cal = calibrate_gyro(devices, clock, gains.ts_s, config['gyro_calibration'])
+        header['calibration'] = cal.as_dict()
+        run['core'] = Core(gains, config, cal.gyro_bias_dps, devices.counts_per_rot)
+        run['loop'] = ControlLoop(devices, run['core'], clock, log, gains.ts_s, bv,
+                                  battery_period_s=config['battery_period_s'],
+                                  max_consecutive_overruns=lim['max_consecutive_overruns'],
+                                  duration_s=duration_s, realtime_priority=realtime_priority)
+        run['loop'].run()
+
+    def finish(reason, code, msg):
         header['stop_reason'] = reason
         header['stop_message'] = msg
         header['exit_code'] = code
         header['stop_wall_time_s'] = time.time()
+        core = run.get('core')
         if core is not None and core.x0 is not None:
             header['encoder_offsets'] = list(core.chain.offsets)
             header['x_tilde_0'] = core.x0
-        if loop is not None:
-            header['loop'] = loop.stats.as_dict()
+        if 'loop' in run:
+            header['loop'] = run['loop'].stats.as_dict()
         header['first_tick'] = log.first_tick()
         header['ticks'] = log.count
         if log_path:
@@ -109,8 +92,8 @@ def run_session(devices, gains, config, clock, log_path=None, duration_s=None,
                     code = header['exit_code'] = EXIT_ERROR
         say('stopped: {} (exit {}, {} ticks)'.format(msg, code, log.count))
         return code, header
-    finally:
-        guard.restore()
+
+    return run_guarded(body, devices.stop_all, finish, say)
 
 
 def _log_rows(config, ts_s, duration_s):

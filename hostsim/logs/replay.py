@@ -42,7 +42,6 @@ DEFAULT_OUT = out_dir("replay")
 DEFAULT_TOL = 1e-9
 # Header fields a replay needs (docs/log-format.md); a log without them is from another version.
 REQUIRED_HEADER = ("gains", "config", "calibration", "counts_per_rot", "first_tick", "ts_s")
-ACTUATED = ("r", "l", "th2", "th3")
 
 
 class ReplayError(Exception):
@@ -269,7 +268,7 @@ def replay_log(log_path, gains_path=None, logged_gains_path=None, tol=DEFAULT_TO
         r.other_gains_path = other
         r.other = replay_rows(header, rows, g, as_logged=False)
         r.other_u_diff = {}
-        for name in ACTUATED:
+        for name in logfile.ACTUATED_NAMES:
             c = logfile.col("u_" + name)
             d = r.other[:, c] - rows[:, c]
             r.other_u_diff[name] = (float(np.max(np.abs(d))), float(np.sqrt(np.mean(d * d))))
@@ -346,7 +345,7 @@ def plot(r, out_dir):
         series.append(("replayed (logged gains)", r.replayed, dict(color="tab:orange", lw=1.0, ls="--")))
     paths = []
     for what, names, units, ncols in (
-            ("inputs", ["u_" + n for n in ACTUATED], ["V"] * 4, 2),
+            ("inputs", ["u_" + n for n in logfile.ACTUATED_NAMES], ["V"] * 4, 2),
             ("estimates", ["xt_" + n for n in logfile.STATE_NAMES], list(logfile.STATE_UNITS), 2)):
         nrows = (len(names) + ncols - 1) // ncols
         fig, axes = plt.subplots(nrows, ncols, figsize=(11, 2.2 * nrows + 0.8), sharex=True, squeeze=False)

@@ -15,9 +15,10 @@ import numpy as np
 
 from hostsim.model import design
 from hostsim.errors import TipbotError
-from hostsim.model.equations import ACTUATED_INPUTS, INPUT_NAMES, STATE_NAMES, RobotModel, get_variant, state_scale_to_si
+from hostsim.model.equations import INPUT_NAMES, STATE_NAMES, RobotModel, get_variant, state_scale_to_si
 from hostsim.model.params import DEFAULT_PARAMS_PATH, load_params, params_hash
 from hostsim.paths import GAINS_DIR
+from tipbot_fw.gains import ACTUATED_INPUTS
 
 SCHEMA_VERSION = 1
 DEFAULT_TS_S = 0.005

@@ -11,10 +11,10 @@ import os
 
 from hostsim.errors import ParameterError, read_json
 from hostsim.paths import REPO_ROOT
+from tipbot_fw.config import MOTOR_ROLES
 
 DEFAULT_PARAMS_PATH = os.path.join(REPO_ROOT, "params", "robot.json")
 
-MOTOR_ROLES = ("right_wheel", "left_wheel", "joint2", "joint3")
 MOTOR_FIELDS = ("beta_nm_s", "ke_v_s", "km_nm_a", "ra_ohm", "jm_kg_m2")
 
 # Lengths, masses and inertias must be > 0; friction may be 0 (a frictionless motor is a

@@ -43,12 +43,14 @@ import time
 import numpy as np
 
 from hostsim.world.fake_ev3 import DEFAULT_MOTOR_PORTS, FakeEV3
-from hostsim.sim.fil import MODEL_INPUT, ROLES, firmware_config
+from hostsim.sim.fil import firmware_config
 from hostsim.model.equations import RobotModel, state_scale_to_si
 from hostsim.model.params import load_params, scaled_params
 from hostsim.world.plant import Plant
 from hostsim.sim.scenario import disturbance_at, load_scenario, parse_scenario
 from hostsim.world.sensors import SensorModel
+from tipbot_fw.config import MOTOR_ROLES
+from tipbot_fw.gains import ACTUATED_INPUTS
 
 DEFAULT_STEP_S = 0.001
 DEFAULT_HOLD_S = 1.5
@@ -70,11 +72,11 @@ class RealTimeRobot:
         s = sc["sensors"]
         self.battery_v = s["battery_v"]
         self.rng = np.random.default_rng(sc["seed"])
-        signs = tuple(self.config["polarity"][r] for r in ROLES)
+        signs = tuple(self.config["polarity"][r] for r in MOTOR_ROLES)
         self.sensors = SensorModel(p["rw_m"], motor_signs=signs, gyro_sign=int(s["gyro_sign"]),
                                    gyro_bias_dps=s["gyro_bias_dps"], gyro_noise_dps=s["gyro_noise_dps"],
                                    rng=self.rng, battery_v=self.battery_v)
-        self.ports = tuple(self.config["ports"][r] for r in ROLES)
+        self.ports = tuple(self.config["ports"][r] for r in MOTOR_ROLES)
         if self.ports != DEFAULT_MOTOR_PORTS:
             raise ValueError("the fake EV3 has its motors on %s" % (DEFAULT_MOTOR_PORTS,))
         self.fake = FakeEV3(root_dir=root, battery_v=self.battery_v)
@@ -123,7 +125,7 @@ class RealTimeRobot:
         signs = self.sensors.motor_signs
         v = np.zeros(5)
         for i, d in enumerate(duties):
-            v[MODEL_INPUT[i]] = signs[i] * d / 100.0 * self.battery_v
+            v[ACTUATED_INPUTS[i]] = signs[i] * d / 100.0 * self.battery_v
         self.volts = v
         self.t_s = t_s
         self._publish()

@@ -42,11 +42,10 @@ from tipbot_fw import config as fw_config
 from tipbot_fw import logfile
 from tipbot_fw.clock import VirtualClock
 from tipbot_fw.devices import MemoryDevices
-from tipbot_fw.gains import gains_from_dict, load_gains
+from tipbot_fw.config import MOTOR_ROLES
+from tipbot_fw.gains import ACTUATED_INPUTS, gains_from_dict, load_gains
 from tipbot_fw.session import run_session
 
-ROLES = ("right_wheel", "left_wheel", "joint2", "joint3")
-MODEL_INPUT = (0, 1, 3, 4)   # u index of each role
 DEFAULT_IO_LATENCY_S = 0.002
 PLANT_DT_S = 0.001
 _EPS_S = 1e-9
@@ -85,7 +84,7 @@ class World:
         self.io_latency_s = io_latency_s
         self.rng = rng
         self.devices = None                     # MemoryDevices, when not on the fake
-        self.ports = None                       # fake EV3 motor ports, in ROLES order
+        self.ports = None                       # fake EV3 motor ports, in MOTOR_ROLES order
         self.battery_v = sc["sensors"]["battery_v"]
         self.pushes = sorted((t_release_s + p["t_s"], p["th1_dot_rad_s"]) for p in sc["pushes"])
         edges = {d[k] for d in sc["disturbances"] for k in ("t_start_s", "t_end_s")}
@@ -124,7 +123,7 @@ class World:
         signs = self.sensors.motor_signs
         scale = self.battery_v / 100.0
         for i, d in enumerate(self.duties()):
-            v[MODEL_INPUT[i]] = signs[i] * d * scale
+            v[ACTUATED_INPUTS[i]] = signs[i] * d * scale
         return v
 
     # -- time
@@ -220,7 +219,7 @@ def run_firmware(sc, gains_path=None, gains_doc=None, sysfs=True, log_path=None,
         gains = load_gains(gains_path)
     config = firmware_config(sc, nominal["rw_m"], config_overrides)
     s = sc["sensors"]
-    signs = tuple(config["polarity"][r] for r in ROLES)
+    signs = tuple(config["polarity"][r] for r in MOTOR_ROLES)
     sensors = SensorModel(p["rw_m"], motor_signs=signs, gyro_sign=int(s["gyro_sign"]),
                           gyro_bias_dps=s["gyro_bias_dps"], gyro_noise_dps=s["gyro_noise_dps"], rng=rng,
                           battery_v=s["battery_v"])
@@ -239,7 +238,7 @@ def run_firmware(sc, gains_path=None, gains_doc=None, sysfs=True, log_path=None,
         log_path = os.path.join(tmp.name, "run.log")
     try:
         if sysfs:
-            world.ports = tuple(config["ports"][r] for r in ROLES)
+            world.ports = tuple(config["ports"][r] for r in MOTOR_ROLES)
             devices = Ev3Devices(config, sysfs_root=fake.sysfs_root, io=fake.io)
         else:
             devices = MemoryDevices(source=world.read, battery_v=lambda: world.battery_v)

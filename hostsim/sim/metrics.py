@@ -9,7 +9,8 @@ import math
 
 import numpy as np
 
-ACTUATED = (0, 1, 3, 4)
+from tipbot_fw.gains import ACTUATED_INPUTS
+
 UPRIGHT_LIMIT_RAD = math.radians(30)
 # After this transient, |th1| counts as the steady oscillation (paper, Section 9).
 TRANSIENT_S = 2.0
@@ -45,7 +46,7 @@ def compute(run, sc, u_max_v):
     t, x, u = run["t_s"], run["x"], run["u"]
     origin = np.zeros(2) + run.get("d_origin_m", 0.0)
     th1 = x[:, 2]
-    sat = np.any(np.abs(u[:, ACTUATED]) >= u_max_v - 1e-6, axis=1)
+    sat = np.any(np.abs(u[:, ACTUATED_INPUTS]) >= u_max_v - 1e-6, axis=1)
     m = {
         "duration_s": _f(t[-1]),
         "completed": bool(run.get("completed", True)),
@@ -53,9 +54,9 @@ def compute(run, sc, u_max_v):
         "peak_abs_th_rad": [_f(v) for v in np.max(np.abs(x[:, 2:5]), axis=0)],
         "state_min": [_f(v) for v in np.min(x, axis=0)],
         "state_max": [_f(v) for v in np.max(x, axis=0)],
-        "peak_abs_u_v": [_f(v) for v in np.max(np.abs(u[:, ACTUATED]), axis=0)],
-        "u_min_v": [_f(v) for v in np.min(u[:, ACTUATED], axis=0)],
-        "u_max_v": [_f(v) for v in np.max(u[:, ACTUATED], axis=0)],
+        "peak_abs_u_v": [_f(v) for v in np.max(np.abs(u[:, ACTUATED_INPUTS]), axis=0)],
+        "u_min_v": [_f(v) for v in np.min(u[:, ACTUATED_INPUTS], axis=0)],
+        "u_max_v": [_f(v) for v in np.max(u[:, ACTUATED_INPUTS], axis=0)],
         "saturated_fraction": _f(np.mean(sat)),
         "last_saturated_s": _f(t[np.nonzero(sat)[0][-1]]) if sat.any() else None,
         "settle_time_s": settle_time(t, th1, sc["settle_band_rad"]),
@@ -64,7 +65,7 @@ def compute(run, sc, u_max_v):
     }
     m["upright"] = bool(m["completed"] and np.all(np.abs(th1) < UPRIGHT_LIMIT_RAD))
     if "u_unsat" in run and np.isfinite(run["u_unsat"]).any():
-        uu = run["u_unsat"][:, ACTUATED]
+        uu = run["u_unsat"][:, ACTUATED_INPUTS]
         m["peak_abs_u_unsat_v"] = [_f(v) for v in np.nanmax(np.abs(uu), axis=0)]
         m["u0_unsat_v"] = [_f(v) for v in uu[0]]
     windows = disturbance_windows(sc, t[-1])
@@ -81,7 +82,7 @@ def compute(run, sc, u_max_v):
             if k0 >= len(t) or not sel.any():
                 continue
             dev = np.maximum(dev, np.max(np.abs(x[sel] - x[k0]), axis=0))
-            udev = np.maximum(udev, np.max(np.abs(u[sel][:, ACTUATED]), axis=0))
+            udev = np.maximum(udev, np.max(np.abs(u[sel][:, ACTUATED_INPUTS]), axis=0))
         m["disturbed_peak_dev"] = [_f(v) for v in dev]
         m["disturbed_peak_abs_u_v"] = [_f(v) for v in udev]
     m.update(_estimation(run, t))
@@ -109,7 +110,7 @@ def _estimation(run, t):
         good = np.all(np.isfinite(wh), axis=1)
         good[:min(len(good), 20)] = False
         if good.any():
-            out["w_hat_error_v"] = _f(np.max(np.abs(wh[good][:, ACTUATED] - w[good][:, ACTUATED])))
+            out["w_hat_error_v"] = _f(np.max(np.abs(wh[good][:, ACTUATED_INPUTS] - w[good][:, ACTUATED_INPUTS])))
     return out
 
 
