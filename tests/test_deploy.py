@@ -3,7 +3,7 @@
 The "brick" is this machine: a throwaway sshd on 127.0.0.1 (own host and user keys, config and
 authorized_keys in a temporary directory) whose sessions see a `python3` that is this test's
 interpreter. The firmware runs there through the deployed launcher, in its own process, against
-a fake EV3 tree that hostsim.fake_robot drives in real time from the simulated robot.
+a fake EV3 tree that `python -m hostsim fake-robot` drives in real time from the simulated robot.
 tools/deploy's planning is also tested without ssh.
 """
 import importlib.machinery
@@ -339,11 +339,11 @@ def test_deploy_installs_the_systemd_unit_on_request(brick):
 
 # ------------------------------------------------------------------ run, logs, replay
 class FakeRobot(object):
-    """python -m hostsim.fake_robot in its own process; ready once the tree exists."""
+    """python -m hostsim fake-robot in its own process; ready once the tree exists."""
 
     def __init__(self, root, scenario, config, duration_s=60):
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "hostsim.sim.fake_robot", "--root", root, "--scenario", scenario,
+            [sys.executable, "-m", "hostsim", "fake-robot", "--root", root, "--scenario", scenario,
              "--write-config", config, "--duration", str(duration_s)],
             cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, universal_newlines=True)
         self.lines = []
@@ -417,7 +417,7 @@ def test_run_on_the_brick_fetch_the_log_and_replay_it_exactly(brick, tmp_path):
     assert rows[:, logfile.col("gyro_rate")].std() > 0
 
     plots = str(tmp_path / "plots")
-    rp = subprocess.run([sys.executable, "-m", "hostsim.logs.replay", logs[0], "--out", plots], cwd=REPO,
+    rp = subprocess.run([sys.executable, "-m", "hostsim", "replay", logs[0], "--out", plots], cwd=REPO,
                         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, universal_newlines=True, timeout=120)
     assert rp.returncode == 0, rp.stdout
     assert "replay with the logged gains (%s" % os.path.join(dest, "gains-") in rp.stdout

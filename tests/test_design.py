@@ -1,6 +1,7 @@
 """Gain design: LQR, finite horizon with disturbance, robust detector, errors, exported files."""
 import json
 import os
+import re
 import subprocess
 import sys
 
@@ -8,7 +9,7 @@ import numpy as np
 import pytest
 
 from hostsim.model import design
-from hostsim.errors import DesignError
+from hostsim.errors import DesignError, ParameterError
 from hostsim.model.gains import DEFAULT_OUT_DIR, design_gains, dumps, main as gains_main, to_document
 from hostsim.model.paper_check import TOLERANCE, cross_spectral_radii, run as paper_check_run
 from hostsim.model.params import load_params
@@ -193,18 +194,20 @@ def write_params(tmp_path, mutate):
 
 
 @pytest.mark.parametrize("mutate, message", [
-    (lambda p: p.pop("m2_kg"), "missing parameter 'm2_kg'"),
-    (lambda p: p["l1_m"].update(value="ten"), "parameter 'l1_m' is not a number"),
-    (lambda p: p["m1_kg"].update(value=-0.663), "parameter 'm1_kg' must be positive"),
-    (lambda p: p["rw_m"].update(value=0), "parameter 'rw_m' must be positive"),
-    (lambda p: p.update(colour={"value": 1}), "unknown parameter 'colour'"),
+    (lambda p: p.pop("m2_kg"), "field parameters.m2_kg is missing"),
+    (lambda p: p["l1_m"].update(value="ten"), "field parameters.l1_m must be a number > 0, got 'ten'"),
+    (lambda p: p["m1_kg"].update(value=-0.663), "field parameters.m1_kg must be a number > 0, got -0.663"),
+    (lambda p: p["rw_m"].update(value=0), "field parameters.rw_m must be a number > 0, got 0"),
+    (lambda p: p["joint2_beta_nm_s"].update(value=-1e-4),
+     "field parameters.joint2_beta_nm_s must be a number >= 0, got -0.0001"),
+    (lambda p: p.update(colour={"value": 1}), "field parameters.colour is unknown"),
 ])
 def test_bad_parameter_files_are_named(tmp_path, mutate, message):
     path = write_params(tmp_path, mutate)
-    with pytest.raises(Exception, match=message):
+    with pytest.raises(ParameterError, match="^" + re.escape(path + ": " + message) + "$"):
         load_params(path)
     # The command line ends with one line naming the cause, exit status 2.
-    proc = subprocess.run([sys.executable, "-m", "hostsim.model.gains", "--params", path, "--out-dir", str(tmp_path)],
+    proc = subprocess.run([sys.executable, "-m", "hostsim", "gains", "--params", path, "--out-dir", str(tmp_path)],
                           capture_output=True, text=True, cwd=REPO_ROOT)
     assert proc.returncode == 2
     assert proc.stderr.strip().count("\n") == 0 and message in proc.stderr
@@ -215,5 +218,5 @@ def test_unreadable_parameter_file_is_named(tmp_path):
     assert gains_main(["--params", str(path), "--out-dir", str(tmp_path)]) == 2
     bad = tmp_path / "bad.json"
     bad.write_text("{not json")
-    with pytest.raises(Exception, match="bad.json: not valid JSON"):
+    with pytest.raises(ParameterError, match="bad.json: not valid JSON"):
         load_params(str(bad))

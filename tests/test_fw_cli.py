@@ -36,7 +36,7 @@ def test_invalid_config_is_refused_before_any_device(tmp_path, capsys, no_device
     cfg = S.write_json(tmp_path / 'cfg.json', {'limits': {'th1_rad': -1}})
     assert cli.main(['run', '--gains', PHYSICAL, '--config', cfg]) == 2
     err = capsys.readouterr().err
-    assert 'refused to start: {}: field limits.th1_rad: must be a number in (0, 1.5], got -1'.format(cfg) in err
+    assert 'refused to start: {}: field limits.th1_rad must be a number in (0, 1.5], got -1'.format(cfg) in err
     assert len(err.strip().splitlines()) == 1
 
 

@@ -296,7 +296,7 @@ def test_real_time_command_line_against_the_simulated_motor(tmp_path):
     process, `python3 -m tipbot_fw identify` runs in another."""
     root = str(tmp_path / "ev3")
     env = dict(os.environ, PYTHONPATH=REPO)
-    sim = subprocess.Popen([sys.executable, "-m", "hostsim.world.motor_sim", "--realtime", "--root", root, "--motor", "5",
+    sim = subprocess.Popen([sys.executable, "-m", "hostsim", "motor-sim", "--realtime", "--root", root, "--motor", "5",
                             "--battery-v", "7.8", "--duration", "20"], cwd=REPO, env=env,
                            stdout=subprocess.PIPE, universal_newlines=True)
     try:

@@ -57,7 +57,7 @@ Output: per log the fit and the parameters beside Table 2's motor for that role 
 against time, one panel per log, as in Figure 3 (--out, default out/identify/); with
 ``--write-params OUT.json`` a copy of the parameters file (--params) with the identified
 roles' five motor fields replaced (sources say from which log and when), which
-``python -m hostsim.gains --params OUT.json`` accepts. Several logs of one role are
+``python -m hostsim gains --params OUT.json`` accepts. Several logs of one role are
 averaged (phi, alpha, tau_c), then the parameters derived.
 
 Logs that cannot give a fit are refused with an IdentifyError naming the log and the
@@ -682,7 +682,7 @@ def main(argv=None):
     ap.add_argument("--params", default=DEFAULT_PARAMS_PATH, help="parameters file (Ra, and the base of --write-params)")
     ap.add_argument("--write-params", metavar="OUT.json", help="write --params with the identified roles replaced")
     ap.add_argument("--out", metavar="DIR", default=DEFAULT_OUT, help="plot and summary directory (default out/identify)")
-    ap.add_argument("--no-plots", action="store_true")
+    ap.add_argument("--no-plots", action="store_true", help="print the fits only (no PNG, no identify.json)")
     a = ap.parse_args(argv)
     for name in ("ra_ohm", "jm_kg_m2"):
         v = getattr(a, name)
@@ -711,7 +711,7 @@ def main(argv=None):
             sources = {g[0]: "identified from %s on %s" % (", ".join(os.path.basename(f["log"].path) for f in g[2]),
                                                             today) for g in groups}
             write_params(a.params, a.write_params, {g[0]: g[3] for g in groups}, sources)
-            print("wrote %s (roles %s); next: python -m hostsim.gains --params %s"
+            print("wrote %s (roles %s); next: python -m hostsim gains --params %s"
                   % (a.write_params, ", ".join(g[0] for g in groups), a.write_params))
         if not a.no_plots:
             os.makedirs(a.out, exist_ok=True)
@@ -724,6 +724,3 @@ def main(argv=None):
         return 2
     return 0
 
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -1,7 +1,7 @@
 """Replay a run log on the host: the firmware's own signal chain, detector and controller.
 
     python -m hostsim replay LOG [--gains FILE] [--logged-gains FILE] [--out DIR] [--no-plots]
-    (also: python -m hostsim.replay ..., make replay LOG=... [GAINS=...])
+    (also: make replay LOG=... [GAINS=...])
 
 The logged raw readings (encoder counts, gyro angle and rate, battery voltage) go through
 tipbot_fw.replay, i.e. the very tipbot_fw.core.Core the robot ran, and what comes out is
@@ -36,6 +36,7 @@ from tipbot_fw import replay as fw_replay
 from tipbot_fw.config import ConfigError, config_from_overrides
 from tipbot_fw.gains import GainsError, load_gains
 
+from hostsim.errors import TipbotError
 from hostsim.paths import GAINS_DIR, out_dir
 
 DEFAULT_OUT = out_dir("replay")
@@ -44,7 +45,7 @@ DEFAULT_TOL = 1e-9
 REQUIRED_HEADER = ("gains", "config", "calibration", "counts_per_rot", "first_tick", "ts_s")
 
 
-class ReplayError(Exception):
+class ReplayError(TipbotError):
     """The log or a gains file cannot be replayed; the message says why (exit status 2)."""
 
 
@@ -382,7 +383,7 @@ def main(argv=None):
                     help="gains to replay with: the logged ones (exact replay) or others (what-if)")
     ap.add_argument("--logged-gains", metavar="FILE", help="the gains file the robot ran, if not found by its hash")
     ap.add_argument("--out", metavar="DIR", default=DEFAULT_OUT, help="plot directory (default out/replay)")
-    ap.add_argument("--no-plots", action="store_true")
+    ap.add_argument("--no-plots", action="store_true", help="print the comparison only")
     ap.add_argument("--tol", type=float, default=DEFAULT_TOL, help="exactness tolerance (default 1e-9)")
     a = ap.parse_args(argv)
     try:
@@ -395,6 +396,3 @@ def main(argv=None):
     print(describe(r, a.tol))
     return 1 if r.exact is False else 0
 
-
-if __name__ == "__main__":
-    sys.exit(main())

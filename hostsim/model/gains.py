@@ -1,6 +1,6 @@
 """Gain generation: model -> linearization -> discretization -> LQR + detector -> JSON.
 
-``python -m hostsim.gains [--variant paper|physical|all] [--ts 0.005] [--params FILE]
+``python -m hostsim gains [--variant paper|physical|all] [--ts 0.005] [--params FILE]
 [--out-dir gains] [--check]`` writes ``gains/<variant>.json`` (schema in
 docs/architecture.md). Output is deterministic: no wall-clock time, floats rounded to 12
 significant digits, so regenerating gives the same bytes. ``--check`` compares instead of
@@ -145,11 +145,12 @@ def robustness_lines(g):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(prog="python -m hostsim.gains", description=__doc__.split("\n\n")[0])
-    ap.add_argument("--variant", choices=VARIANT_NAMES + ("all",), default="all")
+    ap = argparse.ArgumentParser(prog="python -m hostsim gains", description=__doc__.split("\n\n")[0])
+    ap.add_argument("--variant", choices=VARIANT_NAMES + ("all",), default="all",
+                    help="model variant to design (default all)")
     ap.add_argument("--ts", type=float, default=DEFAULT_TS_S, help="loop period in seconds (default 0.005)")
     ap.add_argument("--params", default=DEFAULT_PARAMS_PATH, help="robot parameters JSON")
-    ap.add_argument("--out-dir", default=DEFAULT_OUT_DIR)
+    ap.add_argument("--out-dir", default=DEFAULT_OUT_DIR, help="where the gains files go (default gains/)")
     ap.add_argument("--check", action="store_true", help="compare with the files instead of writing them")
     args = ap.parse_args(argv)
     names = VARIANT_NAMES if args.variant == "all" else (args.variant,)
@@ -178,6 +179,3 @@ def main(argv=None):
         print("error: %s" % exc, file=sys.stderr)
         return 2
 
-
-if __name__ == "__main__":
-    sys.exit(main())

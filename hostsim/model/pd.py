@@ -15,7 +15,7 @@ like-for-like: the best PD of this structure for the very cost the LQR minimizes
 
 The design runs in the gains file's own units (cm for the paper variant), from its A, B, Q,
 R and K, so each gains file gets its own PD (``pd_for_gains``, cached under .cache/pd/ by the
-hash of the gains file and of this module; ``python -m hostsim.pd [GAINS]`` prints it). Its
+hash of the gains file and of this module; ``python -m hostsim pd [GAINS]`` prints it). Its
 cost is ~20 % (paper) and ~4 % (physical) above the LQR's: close to optimal without a
 disturbance. What the PD lacks is the disturbance compensation: no K_w w^ term and no
 integral action, so a constant input disturbance shifts its equilibrium, where the optimal
@@ -29,10 +29,10 @@ Where the baseline runs:
   the estimate x~, which equals y after a few ticks (detector poles at 0.2; with C = I and
   L2 = E G_w the estimate's error does not depend on the disturbance).
 """
+import argparse
 import hashlib
 import json
 import os
-import sys
 
 import numpy as np
 from scipy.linalg import solve_discrete_lyapunov
@@ -134,8 +134,10 @@ def pd_for_gains(path):
 
 
 def main(argv=None):
-    argv = sys.argv[1:] if argv is None else argv
-    paths = argv or [os.path.join(GAINS_DIR, v + ".json") for v in ("paper", "physical")]
+    ap = argparse.ArgumentParser(prog="python -m hostsim pd", description=__doc__.split("\n\n")[0])
+    ap.add_argument("gains", nargs="*", metavar="GAINS",
+                    help="gains files (default gains/paper.json gains/physical.json)")
+    paths = ap.parse_args(argv).gains or [os.path.join(GAINS_DIR, v + ".json") for v in ("paper", "physical")]
     for path in paths:
         pd = pd_for_gains(path)
         print("%s: PD cost %.6g, LQR cost %.6g (x%.3f), spectral radius %.5f"
@@ -144,6 +146,3 @@ def main(argv=None):
             print("  %-9s %12.5g" % (name, value))
     return 0
 
-
-if __name__ == "__main__":
-    sys.exit(main())

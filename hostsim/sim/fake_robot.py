@@ -1,6 +1,6 @@
 """A real-time fake EV3: the simulated robot behind a fake sysfs tree, on the wall clock.
 
-    python -m hostsim.fake_robot --root DIR [--scenario FILE|NAME] [--duration S]
+    python -m hostsim fake-robot --root DIR [--scenario FILE|NAME] [--duration S]
                                  [--write-config FILE] [--trace FILE.npz]
 
 creates a hostsim.fake_ev3 tree in DIR and keeps it in step with the nonlinear plant
@@ -37,7 +37,6 @@ import argparse
 import json
 import math
 import signal
-import sys
 import time
 
 import numpy as np
@@ -163,7 +162,7 @@ def run_realtime(robot, duration_s=None, step_s=DEFAULT_STEP_S, stop=lambda: Fal
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(prog="python -m hostsim.fake_robot",
+    ap = argparse.ArgumentParser(prog="python -m hostsim fake-robot",
                                  description=__doc__.split("\n\n")[0],
                                  epilog=__doc__.split("\n\n", 1)[1],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -205,6 +204,3 @@ def main(argv=None):
         print("fake_robot: client errors: %s" % "; ".join(robot.fake.errors[:5]), flush=True)
     return 0
 
-
-if __name__ == "__main__":
-    sys.exit(main())

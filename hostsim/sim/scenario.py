@@ -24,12 +24,12 @@ Each scenario runs in one or more ``modes`` (hostsim.runner):
 ``controllers``: ``optimal`` (LQR + detector + K_w) and/or ``pd`` (the Appendix D
 baseline of hostsim.pd); each mode runs once per controller.
 """
-import math
 import os
 
-from hostsim.errors import TipbotError, read_json
+from hostsim.errors import TipbotError
 from hostsim.model.params import REQUIRED
 from hostsim.paths import REPO_ROOT
+from tipbot_fw import fields
 
 SCENARIO_DIR = os.path.join(REPO_ROOT, "scenarios")
 
@@ -76,129 +76,105 @@ PLANT_METHODS = ("rk4", "heun")
 PAPER_TO_SI = (0.01, 0.01, 1.0, 1.0, 1.0, 0.01, 0.01, 1.0, 1.0, 1.0)
 
 
-def _number(src, field, value, positive=False, non_negative=False):
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise ScenarioError("%s: field '%s' must be a finite number, got %r" % (src, field, value))
-    if positive and value <= 0:
-        raise ScenarioError("%s: field '%s' must be positive, got %r" % (src, field, value))
-    if non_negative and value < 0:
-        raise ScenarioError("%s: field '%s' must not be negative, got %r" % (src, field, value))
-    return float(value)
+POSITIVE = fields.number(lo=0)
+NON_NEGATIVE = fields.number(lo=0, lo_open=False)
 
 
-def _vector(src, field, value, length):
+def _vector(f, field, value, length):
     if not isinstance(value, list) or len(value) != length:
-        raise ScenarioError("%s: field '%s' must be a list of %d numbers" % (src, field, length))
-    return [_number(src, "%s[%d]" % (field, i), v) for i, v in enumerate(value)]
+        f.fail(field, "must be a list of %d numbers, got %r" % (length, value))
+    return [f.number("%s[%d]" % (field, i), v) for i, v in enumerate(value)]
 
 
 def parse_scenario(doc, src="<scenario>"):
     """Validate a scenario document and fill in defaults; returns a new dict."""
     if not isinstance(doc, dict):
         raise ScenarioError("%s: a scenario is a JSON object" % src)
-    unknown = sorted(set(doc) - set(DEFAULTS) - {"name"})
-    if unknown:
-        raise ScenarioError("%s: unknown field '%s'" % (src, unknown[0]))
+    f = fields.Fields(src, ScenarioError)
+    f.known(doc, set(DEFAULTS) | {"name"})
     sc = dict(DEFAULTS)
     sc.update(doc)
     sc["name"] = str(doc.get("name") or os.path.splitext(os.path.basename(src))[0])
-    if not isinstance(sc["description"], str):
-        raise ScenarioError("%s: field 'description' must be a string" % src)
-    sc["duration_s"] = _number(src, "duration_s", sc["duration_s"], positive=True)
-    _choices(src, "controllers", sc["controllers"], CONTROLLERS)
-    _choices(src, "modes", sc["modes"], MODES)
-    if sc["plant_variant"] not in ("paper", "physical"):
-        raise ScenarioError("%s: field 'plant_variant' must be 'paper' or 'physical'" % src)
-    if sc["plant_method"] not in PLANT_METHODS:
-        raise ScenarioError("%s: field 'plant_method' must be one of %s" % (src, ", ".join(PLANT_METHODS)))
-    if not isinstance(sc["gains"], str):
-        raise ScenarioError("%s: field 'gains' must be a path" % src)
-    if not isinstance(sc["param_scale"], dict):
-        raise ScenarioError("%s: field 'param_scale' must be an object" % src)
+    f.check("description", sc["description"], fields.string)
+    sc["duration_s"] = f.number("duration_s", sc["duration_s"], lo=0)
+    _choices(f, "controllers", sc["controllers"], CONTROLLERS)
+    _choices(f, "modes", sc["modes"], MODES)
+    f.check("plant_variant", sc["plant_variant"], fields.one_of("paper", "physical"))
+    f.check("plant_method", sc["plant_method"], fields.one_of(*PLANT_METHODS))
+    f.check("gains", sc["gains"], fields.nonempty_string)
+    f.check("param_scale", sc["param_scale"], fields.obj)
+    f.known(sc["param_scale"], REQUIRED, "param_scale.")
     for name, factor in sc["param_scale"].items():
-        if name not in REQUIRED:
-            raise ScenarioError("%s: field 'param_scale' names unknown parameter '%s'" % (src, name))
-        _number(src, "param_scale.%s" % name, factor, positive=True)
-    sc["x0_si"] = _state(src, sc, "x0") or [0.0] * 10
-    sc["xhat0_si"] = _state(src, sc, "xhat0")
+        f.check("param_scale.%s" % name, factor, POSITIVE)
+    sc["x0_si"] = _state(f, sc, "x0") or [0.0] * 10
+    sc["xhat0_si"] = _state(f, sc, "xhat0")
     del sc["x0_paper_units"], sc["xhat0_paper_units"]
-    if not isinstance(sc["disturbances"], list):
-        raise ScenarioError("%s: field 'disturbances' must be a list" % src)
+    f.check("disturbances", sc["disturbances"], fields.array)
     for i, d in enumerate(sc["disturbances"]):
-        f = "disturbances[%d]" % i
-        if not isinstance(d, dict) or set(d) != {"t_start_s", "t_end_s", "w_v"}:
-            raise ScenarioError("%s: field '%s' needs exactly t_start_s, t_end_s, w_v" % (src, f))
-        t0 = _number(src, f + ".t_start_s", d["t_start_s"], non_negative=True)
-        t1 = _number(src, f + ".t_end_s", d["t_end_s"], non_negative=True)
+        name = "disturbances[%d]" % i
+        _exactly(f, name, d, ("t_start_s", "t_end_s", "w_v"))
+        t0 = f.number(name + ".t_start_s", d["t_start_s"], lo=0, lo_open=False)
+        t1 = f.number(name + ".t_end_s", d["t_end_s"], lo=0, lo_open=False)
         if t1 < t0:
-            raise ScenarioError("%s: field '%s' ends before it starts" % (src, f))
-        w = _vector(src, f + ".w_v", d["w_v"], 5)
+            f.fail(name, "ends before it starts")
+        w = _vector(f, name + ".w_v", d["w_v"], 5)
         if w[2] != 0.0:
-            raise ScenarioError("%s: field '%s.w_v[2]' must be 0 (link 1 has no motor)" % (src, f))
-    if not isinstance(sc["pushes"], list):
-        raise ScenarioError("%s: field 'pushes' must be a list" % src)
+            f.fail(name + ".w_v[2]", "must be 0 (link 1 has no motor)")
+    f.check("pushes", sc["pushes"], fields.array)
     for i, p in enumerate(sc["pushes"]):
-        f = "pushes[%d]" % i
-        if not isinstance(p, dict) or set(p) != {"t_s", "th1_dot_rad_s"}:
-            raise ScenarioError("%s: field '%s' needs exactly t_s and th1_dot_rad_s" % (src, f))
-        _number(src, f + ".t_s", p["t_s"], non_negative=True)
-        _number(src, f + ".th1_dot_rad_s", p["th1_dot_rad_s"])
-    if not isinstance(sc["sensors"], dict):
-        raise ScenarioError("%s: field 'sensors' must be an object" % src)
-    bad = sorted(set(sc["sensors"]) - set(SENSOR_DEFAULTS))
-    if bad:
-        raise ScenarioError("%s: unknown field 'sensors.%s'" % (src, bad[0]))
+        name = "pushes[%d]" % i
+        _exactly(f, name, p, ("t_s", "th1_dot_rad_s"))
+        f.check(name + ".t_s", p["t_s"], NON_NEGATIVE)
+        f.check(name + ".th1_dot_rad_s", p["th1_dot_rad_s"], fields.number())
+    f.check("sensors", sc["sensors"], fields.obj)
+    f.known(sc["sensors"], SENSOR_DEFAULTS, "sensors.")
     sensors = dict(SENSOR_DEFAULTS)
     sensors.update(sc["sensors"])
-    for k, v in sensors.items():
-        _number(src, "sensors." + k, v, positive=(k == "battery_v"), non_negative=k.endswith("noise_dps"))
-    if sensors["gyro_sign"] not in (1, -1):
-        raise ScenarioError("%s: field 'sensors.gyro_sign' must be 1 or -1" % src)
+    for k in ("gyro_bias_dps", "gyro_sign"):
+        f.check("sensors." + k, sensors[k], fields.number())
+    f.check("sensors.gyro_noise_dps", sensors["gyro_noise_dps"], NON_NEGATIVE)
+    f.check("sensors.battery_v", sensors["battery_v"], POSITIVE)
+    f.check("sensors.gyro_sign", sensors["gyro_sign"], fields.one_of(1, -1))
     sc["sensors"] = sensors
-    delay = sc["extra_delay_ticks"]
-    if isinstance(delay, bool) or not isinstance(delay, int) or delay < 0:
-        raise ScenarioError("%s: field 'extra_delay_ticks' must be a non-negative integer" % src)
-    sc["jitter_s"] = _number(src, "jitter_s", sc["jitter_s"], non_negative=True)
-    sc["io_latency_s"] = _number(src, "io_latency_s", sc["io_latency_s"], non_negative=True)
-    sc["settle_band_rad"] = _number(src, "settle_band_rad", sc["settle_band_rad"], positive=True)
-    if isinstance(sc["seed"], bool) or not isinstance(sc["seed"], int):
-        raise ScenarioError("%s: field 'seed' must be an integer" % src)
-    if not isinstance(sc["expect"], dict):
-        raise ScenarioError("%s: field 'expect' must be an object" % src)
+    f.check("extra_delay_ticks", sc["extra_delay_ticks"], fields.number(lo=0, lo_open=False, integer=True))
+    sc["jitter_s"] = f.number("jitter_s", sc["jitter_s"], lo=0, lo_open=False)
+    sc["io_latency_s"] = f.number("io_latency_s", sc["io_latency_s"], lo=0, lo_open=False)
+    sc["settle_band_rad"] = f.number("settle_band_rad", sc["settle_band_rad"], lo=0)
+    f.check("seed", sc["seed"], fields.number(integer=True))
+    f.check("expect", sc["expect"], fields.obj)
     runs = {"%s/%s" % (m, c) for m in sc["modes"] for c in sc["controllers"]}
     for label, bounds in sc["expect"].items():
-        f = "expect.%s" % label
+        name = "expect.%s" % label
         if label not in runs:
-            raise ScenarioError("%s: field '%s' names no run of this scenario (runs: %s)" % (src, f, ", ".join(sorted(runs))))
-        if not isinstance(bounds, dict):
-            raise ScenarioError("%s: field '%s' must be an object" % (src, f))
+            f.fail(name, "names no run of this scenario (runs: %s)" % ", ".join(sorted(runs)))
+        f.check(name, bounds, fields.obj)
+        f.known(bounds, EXPECT_KEYS, name + ".")
         for k, v in bounds.items():
-            if k not in EXPECT_KEYS:
-                raise ScenarioError("%s: unknown field '%s.%s'" % (src, f, k))
-            if k == "upright":
-                if not isinstance(v, bool):
-                    raise ScenarioError("%s: field '%s.upright' must be true or false" % (src, f))
-            else:
-                _number(src, "%s.%s" % (f, k), v, positive=True)
+            f.check("%s.%s" % (name, k), v, fields.boolean if k == "upright" else POSITIVE)
     return sc
 
 
-def _choices(src, field, value, allowed):
+def _exactly(f, name, value, keys):
+    if not isinstance(value, dict) or set(value) != set(keys):
+        f.fail(name, "must be an object with exactly %s, got %r" % (", ".join(keys), value))
+
+
+def _choices(f, field, value, allowed):
     if not isinstance(value, list) or not value or any(not isinstance(v, str) or v not in allowed for v in value):
-        raise ScenarioError("%s: field '%s' must be a non-empty list of %s" % (src, field, ", ".join(allowed)))
+        f.fail(field, "must be a non-empty list of %s, got %r" % (", ".join(allowed), value))
     if len(set(value)) != len(value):
-        raise ScenarioError("%s: field '%s' lists an entry twice" % (src, field))
+        f.fail(field, "lists an entry twice: %r" % (value,))
 
 
-def _state(src, sc, base):
+def _state(f, sc, base):
     """x0 / xhat0 from either its SI field or its paper-units field (not both), in SI."""
     si, paper = sc[base + "_si"], sc[base + "_paper_units"]
     if si is not None and paper is not None:
-        raise ScenarioError("%s: field '%s_paper_units' conflicts with '%s_si': give one" % (src, base, base))
+        f.fail(base + "_paper_units", "conflicts with %s_si: give one" % base)
     if si is not None:
-        return _vector(src, base + "_si", si, 10)
+        return _vector(f, base + "_si", si, 10)
     if paper is not None:
-        return [v * k for v, k in zip(_vector(src, base + "_paper_units", paper, 10), PAPER_TO_SI)]
+        return [v * k for v, k in zip(_vector(f, base + "_paper_units", paper, 10), PAPER_TO_SI)]
     return None
 
 
@@ -208,7 +184,7 @@ def load_scenario(path):
         candidate = os.path.join(SCENARIO_DIR, path if path.endswith(".json") else path + ".json")
         if os.path.exists(candidate):
             path = candidate
-    sc = parse_scenario(read_json(path, "scenario", ScenarioError), path)
+    sc = parse_scenario(fields.read_json(path, ScenarioError)[0], path)
     if not os.path.isabs(sc["gains"]):
         sc["gains"] = os.path.join(REPO_ROOT, sc["gains"])
     return sc

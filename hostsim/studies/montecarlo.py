@@ -24,7 +24,6 @@ Results do not depend on --jobs (see hostsim.parallel).
 import argparse
 import json
 import os
-import sys
 import time
 
 import numpy as np
@@ -221,11 +220,11 @@ def main(argv=None):
     ap = argparse.ArgumentParser(prog="python -m hostsim montecarlo", description=__doc__.split("\n\n")[0])
     ap.add_argument("--runs", type=int, default=200, help="runs per gains file (default 200)")
     ap.add_argument("--duration", type=float, default=None, help="seconds per run (default: the base scenario's, 10)")
-    ap.add_argument("--gains", nargs="+", default=list(DEFAULT_GAINS))
+    ap.add_argument("--gains", nargs="+", default=list(DEFAULT_GAINS), help="gains files (default gains/paper.json gains/physical.json)")
     ap.add_argument("--kw0", action="store_true", help="also run each gains file with K_w = 0 (diagnosis)")
     ap.add_argument("--jobs", type=int, default=None, help="worker processes (default: all cores)")
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--out", default=out_dir("montecarlo"))
+    ap.add_argument("--seed", type=int, default=0, help="seed of the draws (default 0)")
+    ap.add_argument("--out", default=out_dir("montecarlo"), help="output directory (default out/montecarlo)")
     args = ap.parse_args(argv)
     if args.runs < 1:
         ap.error("--runs must be at least 1")
@@ -235,6 +234,3 @@ def main(argv=None):
     print("wrote %s and %s" % (os.path.join(args.out, "montecarlo.json"), os.path.join(args.out, fig)))
     return 0
 
-
-if __name__ == "__main__":
-    sys.exit(main())

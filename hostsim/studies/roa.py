@@ -18,7 +18,6 @@ would configure it). The difference between the two is what the signal chain cos
 import argparse
 import json
 import os
-import sys
 import time
 
 import numpy as np
@@ -151,12 +150,12 @@ def write(res, out_dir):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(prog="python -m hostsim roa", description=__doc__.split("\n\n")[0])
-    ap.add_argument("--gains", nargs="+", default=list(DEFAULT_GAINS))
+    ap.add_argument("--gains", nargs="+", default=list(DEFAULT_GAINS), help="gains files (default gains/paper.json gains/physical.json)")
     ap.add_argument("--modes", default=",".join(DEFAULT_MODES), help="comma-separated: nonlinear, firmware")
     ap.add_argument("--tol", type=float, default=0.01, help="bisection resolution in rad (default 0.01)")
     ap.add_argument("--kw0", action="store_true", help="also run each gains file with K_w = 0 (diagnosis)")
-    ap.add_argument("--jobs", type=int, default=None)
-    ap.add_argument("--out", default=out_dir("roa"))
+    ap.add_argument("--jobs", type=int, default=None, help="worker processes (default: all cores)")
+    ap.add_argument("--out", default=out_dir("roa"), help="output directory (default out/roa)")
     args = ap.parse_args(argv)
     modes = [m.strip() for m in args.modes.split(",") if m.strip()]
     bad = [m for m in modes if m not in DEFAULT_MODES]
@@ -170,6 +169,3 @@ def main(argv=None):
     print("wrote %s and %s" % (os.path.join(args.out, "roa.json"), os.path.join(args.out, fig)))
     return 0
 
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -145,7 +145,7 @@ def main(argv=None):
     ap.add_argument("--modes", help="comma-separated subset of the scenario's modes (%s)" % ", ".join(MODES))
     ap.add_argument("--device", choices=("sysfs", "memory"), default="sysfs",
                     help="firmware device layer: the fake EV3 sysfs tree (default) or in-memory")
-    ap.add_argument("--no-plots", action="store_true")
+    ap.add_argument("--no-plots", action="store_true", help="write metrics.json and runs.npz only")
     args = ap.parse_args(argv)
     try:
         sc = load_scenario(args.scenario)

@@ -1,7 +1,6 @@
 """Simulation speed: real-time factor of the firmware in the loop, Monte Carlo throughput.
 
-``python -m hostsim.bench [--duration 10] [--repeat 3] [--mc-runs N] [--jobs N]`` (also
-``python -m hostsim bench``) prints, for a balancing run of the physical gains on the
+``python -m hostsim bench-sim [--duration 10] [--repeat 3] [--mc-runs N] [--jobs N]`` prints, for a balancing run of the physical gains on the
 physical plant (scenarios/montecarlo_base.json without perturbations):
 
 - seconds of wall time per run and the real-time factor (simulated / wall seconds), best of
@@ -10,7 +9,6 @@ physical plant (scenarios/montecarlo_base.json without perturbations):
 - the Monte Carlo throughput on --jobs workers, and the projected time of 200 runs.
 """
 import argparse
-import sys
 import time
 
 
@@ -71,7 +69,7 @@ def measure(duration_s=10.0, repeat=3, mc_runs=None, jobs=None, say=print):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(prog="python -m hostsim.bench", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m hostsim bench-sim", description=__doc__.split("\n\n")[0])
     ap.add_argument("--duration", type=float, default=10.0, help="simulated seconds per run (default 10)")
     ap.add_argument("--repeat", type=int, default=3, help="best of this many runs (default 3)")
     ap.add_argument("--mc-runs", type=int, default=None, help="Monte Carlo runs to time (default 4 per worker)")
@@ -80,6 +78,3 @@ def main(argv=None):
     measure(args.duration, max(1, args.repeat), args.mc_runs, args.jobs)
     return 0
 
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -22,7 +22,7 @@ def ensure_gains(say):
     for name in GAINS:
         path = os.path.join(gains.DEFAULT_OUT_DIR, name + ".json")
         if not os.path.exists(path):
-            say("%s is missing: generating it (python -m hostsim.gains --variant %s)" % (os.path.relpath(path, REPO_ROOT), name))
+            say("%s is missing: generating it (python -m hostsim gains --variant %s)" % (os.path.relpath(path, REPO_ROOT), name))
             if gains.main(["--variant", name]) != 0:
                 raise SystemExit("could not generate %s" % path)
 
@@ -62,18 +62,19 @@ def main(argv=None):
     from hostsim.sim.scenario import load_scenario
 
     ap = argparse.ArgumentParser(prog="python -m hostsim sim", description=__doc__.split("\n\n")[0])
-    ap.add_argument("--out", default=out_dir("sim"))
-    ap.add_argument("--scenarios", nargs="+", default=list(SCENARIOS))
+    ap.add_argument("--out", default=out_dir("sim"), help="output directory (default out/sim)")
+    ap.add_argument("--scenarios", nargs="+", default=list(SCENARIOS),
+                    help="scenario names or files (default: %s)" % " ".join(SCENARIOS))
     ap.add_argument("--device", choices=("sysfs", "memory"), default="sysfs",
                     help="firmware device layer for the scenarios (default: the fake EV3 sysfs tree)")
     ap.add_argument("--mc-runs", type=int, default=40, help="Monte Carlo runs per gains file (default 40; "
                     "python -m hostsim montecarlo for the full study)")
-    ap.add_argument("--mc-duration", type=float, default=10.0)
-    ap.add_argument("--roa-tol", type=float, default=0.02)
+    ap.add_argument("--mc-duration", type=float, default=10.0, help="seconds per Monte Carlo run (default 10)")
+    ap.add_argument("--roa-tol", type=float, default=0.02, help="region of attraction bisection resolution in rad (default 0.02)")
     ap.add_argument("--kw0", action="store_true", help="also run the robustness with K_w = 0 (a diagnosis: "
                     "what the disturbance compensation costs or buys in the firmware)")
-    ap.add_argument("--no-robustness", action="store_true")
-    ap.add_argument("--jobs", type=int, default=None)
+    ap.add_argument("--no-robustness", action="store_true", help="skip the region of attraction and the Monte Carlo")
+    ap.add_argument("--jobs", type=int, default=None, help="worker processes (default: all cores)")
     args = ap.parse_args(argv)
 
     def say(msg):
@@ -119,6 +120,3 @@ def main(argv=None):
                                  time.perf_counter() - t_start))
     return 0 if ok else 1
 
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -27,19 +27,18 @@ Two ways to run it:
 * real time, for the firmware as a separate process (``python3 -m tipbot_fw identify
   --sysfs-root DIR``)::
 
-      python -m hostsim.motor_sim --root /tmp/ev3 --motor 5 --realtime &
+      python -m hostsim motor-sim --root /tmp/ev3 --motor 5 --realtime &
       python3 -m tipbot_fw identify --port outA --yes --sysfs-root /tmp/ev3 --log m5.log
 
   (the duty takes effect at the first poll after the firmware wrote it, 0-1 ms late: an
   apparent dead time the host fit estimates).
 
-``python -m hostsim.motor_sim --motor 1 --log FILE`` writes a simulated identify log (lock-step).
+``python -m hostsim motor-sim --motor 1 --log FILE`` writes a simulated identify log (lock-step).
 """
 import argparse
 import math
 import os
 import signal
-import sys
 import tempfile
 import time
 
@@ -247,19 +246,20 @@ def _params_from_args(a):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(prog="python -m hostsim.motor_sim", description=__doc__.split("\n\n")[0],
+    ap = argparse.ArgumentParser(prog="python -m hostsim motor-sim", description=__doc__.split("\n\n")[0],
                                  epilog=__doc__.split("\n\n", 1)[1],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--motor", type=int, choices=sorted(TABLE2), default=1, help="Table 2 motor (default 1)")
     for name in MotorParams._fields:
         ap.add_argument("--" + name.replace("_", "-"), dest=name, type=float, help="override Table 2's " + name)
     ap.add_argument("--driver", help="ev3dev driver (default: large motor for 1-4, medium for 5)")
-    ap.add_argument("--port", default="outA")
-    ap.add_argument("--battery-v", type=float, default=DEFAULT_BATTERY_V)
-    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--port", default="outA", help="the motor's port (default outA)")
+    ap.add_argument("--battery-v", type=float, default=DEFAULT_BATTERY_V,
+                    help="open-circuit battery voltage (default %g)" % DEFAULT_BATTERY_V)
+    ap.add_argument("--seed", type=int, default=0, help="seed of the encoder phase and battery noise")
     ap.add_argument("--log", metavar="FILE", help="lock-step: write a simulated identify log here")
-    ap.add_argument("--duty", type=int, default=100)
-    ap.add_argument("--seconds", type=float, default=2.0)
+    ap.add_argument("--duty", type=int, default=100, help="lock-step: duty in percent (default 100)")
+    ap.add_argument("--seconds", type=float, default=2.0, help="lock-step: drive time in s (default 2)")
     ap.add_argument("--period-ms", type=float, default=0.5, help="lock-step: time between reads (default 0.5)")
     ap.add_argument("--realtime", action="store_true", help="keep a fake EV3 tree in --root in step with the "
                     "motor on the wall clock until SIGTERM/SIGINT or --duration")
@@ -290,6 +290,3 @@ def main(argv=None):
           % (a.motor, driver, params.phi, params.alpha, params.tau_coast_s, code, header.get("rows", 0), log))
     return 0 if code == 0 else 1
 
-
-if __name__ == "__main__":
-    sys.exit(main())
