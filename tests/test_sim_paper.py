@@ -12,11 +12,12 @@ import pytest
 
 from hostsim.sim import metrics
 from hostsim.sim.fil import run_firmware
-from hostsim.sim.linear_sim import GainSet, simulate_linear, simulate_nonlinear
+from hostsim.sim.linear_sim import simulate_linear, simulate_nonlinear
 from hostsim.paths import REPO_ROOT
 from hostsim.model.pd import pd_for_gains
 from hostsim.studies.runner import run_scenario, scenario_metrics
 from hostsim.sim.scenario import load_scenario
+from tipbot_fw.gains import load_gains
 
 U_MAX = 7.6
 ACT = [0, 1, 3, 4]
@@ -72,7 +73,7 @@ def test_section7_detector_error_converges_despite_disturbance_and_saturation(se
     # w^_k is w_k one tick later, exactly, once the estimate has converged.
     assert lin["w_hat_error_v"] < 1e-6
     run = runs["linear/optimal"]
-    e = np.abs(run["xhat"] - run["x"]).max(axis=1)
+    e = np.abs(run.xhat - run.x).max(axis=1)
     assert e[40] < 1e-6 * e[0]                            # detector poles at 0.2: fast
     # The nonlinear plant is not the detector's model: the error is small, not zero.
     assert m["nonlinear/optimal"]["final_est_error"] < 1e-3
@@ -87,7 +88,7 @@ def test_section8_short_rejects_the_wheel_disturbance():
         assert max(r["peak_abs_u_v"]) < U_MAX                 # no saturation from 0.017 rad
         assert r["disturbed_peak_dev"][2] < 0.005             # th1 barely moves under 1 V
         assert r["final_abs_d_m"] < 0.01
-    a, b = runs["linear/optimal"]["x"], runs["nonlinear/optimal"]["x"]
+    a, b = runs["linear/optimal"].x, runs["nonlinear/optimal"].x
     assert np.max(np.abs(a[:, 2] - b[:, 2])) < 1e-3
 
 
@@ -116,17 +117,17 @@ def test_pd_baseline_is_stable_and_close_to_the_lq_cost():
 def test_firmware_runs_of_the_paper_scenarios_keep_the_invariants(name, duration, shift):
     sc = shortened(name, duration, shift)
     run = run_firmware(sc, sysfs=False)
-    n = len(run["t_s"])
-    assert n >= 1 and run["exit_code"] in (0, 6)                       # completed, or a safety stop
-    assert np.all(np.abs(run["u"][:, ACT]) <= U_MAX + 1e-9)
-    assert np.all(np.abs(run["u_cmd"][:, ACT]) <= U_MAX + 1e-9)
+    n = len(run.t_s)
+    assert n >= 1 and run.exit_code in (0, 6)                       # completed, or a safety stop
+    assert np.all(np.abs(run.u[:, ACT]) <= U_MAX + 1e-9)
+    assert np.all(np.abs(run.u_cmd[:, ACT]) <= U_MAX + 1e-9)
     # The estimate starts at the first measurement, not at the scenario's x~(0).
-    assert np.allclose(run["xhat"][0], run["y"][0])
-    assert np.abs(run["xhat"][0, 2:5] - np.array(sc["x0_si"][2:5])).max() < 0.02
+    assert np.allclose(run.xhat[0], run.y[0])
+    assert np.abs(run.xhat[0, 2:5] - np.array(sc["x0_si"][2:5])).max() < 0.02
     # The wheel origin (hostsim.fil): shifted by d_origin_m, the firmware's measured d is the
     # plant's, to an encoder count and the th1 estimate's error times R_w.
-    early = run["t_s"] <= 0.3
-    assert np.abs(run["y"][early, :2] - run["x"][early, :2]).max() < 0.002
+    early = run.t_s <= 0.3
+    assert np.abs(run.y[early, :2] - run.x[early, :2]).max() < 0.002
 
 
 @pytest.mark.parametrize("name", ["section8", "appendix_d"])
@@ -139,7 +140,7 @@ def test_firmware_balances_with_the_shipped_gains(name):
 
 def test_linear_and_nonlinear_agree_near_equilibrium():
     sc = load_scenario("near_equilibrium")
-    g = GainSet(sc["gains"])
+    g = load_gains(sc["gains"])
     lin, nl = simulate_linear(g, sc), simulate_nonlinear(g, sc)
-    assert np.max(np.abs(lin["x"][:, 2] - nl["x"][:, 2])) < 2e-4
-    assert np.max(np.abs(lin["u"] - nl["u"])) < 0.05
+    assert np.max(np.abs(lin.x[:, 2] - nl.x[:, 2])) < 2e-4
+    assert np.max(np.abs(lin.u - nl.u)) < 0.05

@@ -6,12 +6,13 @@ import numpy as np
 import pytest
 
 from hostsim.model import fastdyn
-from hostsim.sim.linear_sim import GainSet, simulate_nonlinear
+from hostsim.sim.linear_sim import simulate_nonlinear
 from hostsim.model.equations import RobotModel
 from hostsim.model.params import load_params
 from hostsim.paths import REPO_ROOT
 from hostsim.world.plant import Plant, solve_spd5
 from hostsim.sim.scenario import parse_scenario
+from tipbot_fw.gains import load_gains
 
 VARIANTS = ("paper", "physical")
 
@@ -47,13 +48,13 @@ HEUN_BOUNDS = {"paper": (3e-4, 0.03), "physical": (2e-5, 2e-4)}   # (angles rad,
 @pytest.mark.parametrize("variant", VARIANTS)
 def test_heun_matches_rk4_closely(variant):
     path = os.path.join(REPO_ROOT, "gains", variant + ".json")
-    g = GainSet(path)
+    g = load_gains(path)
     base = {"duration_s": 3.0, "gains": path, "plant_variant": variant,
             "x0_si": [0, 0, 0.15, 0.1, -0.1, 0, 0, 0, 0, 0],
             "disturbances": [{"t_start_s": 1.0, "t_end_s": 2.0, "w_v": [1, 1, 0, 0.5, 0.5]}]}
     runs = {m: simulate_nonlinear(g, parse_scenario(dict(base, plant_method=m))) for m in ("rk4", "heun")}
-    assert runs["rk4"]["completed"] and np.max(np.abs(runs["rk4"]["u"])) == pytest.approx(7.6)
-    err = np.max(np.abs(runs["heun"]["x"] - runs["rk4"]["x"]), axis=0)
+    assert runs["rk4"].completed and np.max(np.abs(runs["rk4"].u)) == pytest.approx(7.6)
+    err = np.max(np.abs(runs["heun"].x - runs["rk4"].x), axis=0)
     angles, rates = HEUN_BOUNDS[variant]
     assert err[2:5].max() < angles
     assert err[7:].max() < rates

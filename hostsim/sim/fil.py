@@ -35,6 +35,7 @@ import numpy as np
 
 from hostsim.model.equations import RobotModel, state_scale_to_si
 from hostsim.model.params import load_params, scaled_params
+from hostsim.sim.result import RunResult
 from hostsim.world.plant import Plant
 from hostsim.sim.scenario import disturbance_at
 from hostsim.world.sensors import SensorModel
@@ -199,12 +200,13 @@ def run_firmware(sc, gains_path=None, gains_doc=None, sysfs=True, log_path=None,
     keep_rows: read the firmware's log back for its estimates (a temporary log unless
     log_path is given); without it only the plant's side is returned.
 
-    Returns a dict: t_s (tick times from the release), io_per_iteration (sysfs runs only: the
-    device layer's (op, path, bytes) between two consecutive sleeps of the loop), x (plant state at the ticks, SI), u
-    (the motors' volts over each tick, from the duties), w (the disturbance added to them),
+    -> RunResult: t_s (tick times from the release), x (plant state at the ticks, SI), u (the
+    motors' volts over each tick, from the duties), w (the disturbance added to them),
     d_origin_m (see the module docstring), exit_code, stop_reason, completed, header (the
-    firmware log's), and with keep_rows: xhat, w_hat, y (the firmware's, shifted into the
-    scenario's frame), u_cmd (the inputs the firmware applied), u_unsat (before saturation).
+    firmware log's), io_per_iteration (sysfs runs only: the device layer's (op, path, bytes)
+    between two consecutive sleeps of the loop), and with keep_rows: xhat, w_hat, y (the
+    firmware's, shifted into the scenario's frame), u_cmd (the inputs the firmware applied),
+    u_unsat (before saturation).
     """
     gains_path = gains_path or sc["gains"]
     rng = np.random.default_rng(sc["seed"])
@@ -259,17 +261,17 @@ def run_firmware(sc, gains_path=None, gains_doc=None, sysfs=True, log_path=None,
     rw = config["wheel_radius_m"]
     x0 = sc["x0_si"]
     d_origin = np.array([x0[0] - rw * x0[2], x0[1] - rw * x0[2]])
-    out = _world_result(world, sc, d_origin)
+    out = _world_side(world)
     if fake is not None:
         out["io_per_iteration"] = [fake.io.log[a:b] for a, b in zip(world.io_marks, world.io_marks[1:])]
-    out.update(exit_code=code, stop_reason=header.get("stop_reason"), header=header,
-               completed=code == 0 and header.get("stop_reason") == "completed")
     if rows is not None:
-        out.update(_firmware_side(rows, gains, d_origin, len(out["t_s"])))
-    return out
+        out.update(_firmware_side(rows, d_origin, len(out["t_s"])))
+    return RunResult(d_origin_m=d_origin, exit_code=code, stop_reason=header.get("stop_reason"), header=header,
+                     completed=code == 0 and header.get("stop_reason") == "completed", **out)
 
 
-def _world_result(world, sc, d_origin):
+def _world_side(world):
+    """What the plant did: t_s, x, u, w."""
     n = len(world.log_t)
     u = np.zeros((n, 5))
     w = np.zeros((n, 5))
@@ -278,11 +280,10 @@ def _world_result(world, sc, d_origin):
         # log_u[k] is what the plant got over tick k; the last tick has none: repeat.
         u[:m], w[:m] = world.log_u[:n], world.log_w[:n]
         u[m:], w[m:] = world.log_u[-1], world.log_w[-1]
-    return dict(t_s=np.array(world.log_t), x=np.array(world.log_x).reshape(n, 10), u=u, w=w,
-                d_origin_m=d_origin)
+    return dict(t_s=np.array(world.log_t), x=np.array(world.log_x).reshape(n, 10), u=u, w=w)
 
 
-def _firmware_side(rows, gains, d_origin, n):
+def _firmware_side(rows, d_origin, n):
     """The firmware's own view from its log rows (by column name), tick k <-> plant sample k."""
     rows = rows[:n]
     names = logfile.COLUMN_NAMES
@@ -296,11 +297,7 @@ def _firmware_side(rows, gains, d_origin, n):
     xhat = block("xt_d_r", 10) + shift
     w_hat = block("w_r", 5)
     u_cmd = block("u_r", 5)
-    if "u_cmd_r" in names:
-        u_unsat = block("u_cmd_r", 5)
-    else:
-        # Row k holds x~_k and w^_{k-1}, the two terms of u_k.
-        u_unsat = -(block("xt_d_r", 10) @ gains.K.T) - (w_hat @ gains.K_w.T)
+    u_unsat = block("u_cmd_r", 5)
     if len(rows) < n:
         pad = n - len(rows)
         y, xhat, w_hat, u_cmd, u_unsat = (np.vstack([a, np.full((pad, a.shape[1]), np.nan)])

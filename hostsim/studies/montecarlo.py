@@ -104,14 +104,14 @@ def run_one(task):
     t0 = time.perf_counter()
     run = run_firmware(sc, gains_doc=gains_document(gains_path, zero_kw), sysfs=False, keep_rows=False)
     wall = time.perf_counter() - t0
-    x, u = run["x"], run["u"]
+    x, u = run.x, run.u
     th1 = np.abs(x[:, 2])
-    completed = bool(run["completed"])
+    completed = bool(run.completed)
     success = completed and bool(np.all(th1 < UPRIGHT_LIMIT_RAD)) and float(th1[-1]) < FINAL_TH1_RAD
     return {
-        "gains": label, "index": index, "success": success, "exit_code": run["exit_code"],
-        "stop_reason": run["stop_reason"], "refused": run["stop_reason"] == "calibration",
-        "simulated_s": float(run["t_s"][-1]), "wall_s": wall,
+        "gains": label, "index": index, "success": success, "exit_code": run.exit_code,
+        "stop_reason": run.stop_reason, "refused": run.stop_reason == "calibration",
+        "simulated_s": float(run.t_s[-1]), "wall_s": wall,
         "peak_abs_th1_rad": float(th1.max()), "peak_abs_th2_rad": float(np.abs(x[:, 3]).max()),
         "peak_abs_th3_rad": float(np.abs(x[:, 4]).max()), "final_abs_th1_rad": float(th1[-1]),
         "peak_abs_u_v": float(np.abs(u[:, [0, 1, 3, 4]]).max()),

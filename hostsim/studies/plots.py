@@ -75,12 +75,12 @@ def _state_panels(axes, sc, runs, idx, estimates=False, errors=False):
         for label, run in runs.items():
             st = _style(label)
             if errors:
-                if "xhat" in run:
-                    ax.plot(run["t_s"], (run["xhat"][:, i] - run["x"][:, i]) * DISPLAY[i], label=label, **st)
+                if run.xhat is not None:
+                    ax.plot(run.t_s, (run.xhat[:, i] - run.x[:, i]) * DISPLAY[i], label=label, **st)
                 continue
-            ax.plot(run["t_s"], run["x"][:, i] * DISPLAY[i], label=label, **st)
-            if estimates and "xhat" in run:
-                ax.plot(run["t_s"], run["xhat"][:, i] * DISPLAY[i], color=st["color"], linestyle=":", linewidth=1.2,
+            ax.plot(run.t_s, run.x[:, i] * DISPLAY[i], label=label, **st)
+            if estimates and run.xhat is not None:
+                ax.plot(run.t_s, run.xhat[:, i] * DISPLAY[i], color=st["color"], linestyle=":", linewidth=1.2,
                         zorder=st["zorder"], label=label + " estimate")
         ax.set_ylabel(STATE_LABELS[i], fontsize=8)
         ax.set_title("(%s)" % LETTERS[p], fontsize=8, loc="left")
@@ -133,10 +133,10 @@ def inputs(sc, runs, u_max_v, path):
         _shade(ax, sc)
         for label, run in runs.items():
             st = _style(label)
-            ax.plot(run["t_s"], run["u"][:, i], label=label, **st)
-            if "u_unsat" in run:
-                unsat = np.clip(run["u_unsat"][:, i], -3 * u_max_v, 3 * u_max_v)
-                ax.plot(run["t_s"], unsat, color=st["color"], linestyle="--", linewidth=0.6, alpha=0.6,
+            ax.plot(run.t_s, run.u[:, i], label=label, **st)
+            if run.u_unsat is not None:
+                unsat = np.clip(run.u_unsat[:, i], -3 * u_max_v, 3 * u_max_v)
+                ax.plot(run.t_s, unsat, color=st["color"], linestyle="--", linewidth=0.6, alpha=0.6,
                         zorder=st["zorder"] - 0.5)
         for s in (-1, 1):
             ax.axhline(s * u_max_v, color="k", linewidth=0.6, linestyle="-.")
@@ -157,7 +157,7 @@ def compare_controllers(sc, runs, mode, u_max_v, path):
         ax = axes[5 + p // 2, p % 2]
         _shade(ax, sc)
         for label, run in pair.items():
-            ax.plot(run["t_s"], run["u"][:, i], label=label, **_style(label))
+            ax.plot(run.t_s, run.u[:, i], label=label, **_style(label))
         for s in (-1, 1):
             ax.axhline(s * u_max_v, color="k", linewidth=0.6, linestyle="-.")
         ax.set_ylabel(name, fontsize=8)

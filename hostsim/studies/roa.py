@@ -23,6 +23,7 @@ import time
 import numpy as np
 
 from hostsim.paths import out_dir
+from tipbot_fw.gains import gains_from_dict
 
 ANGLES = {"th1": 2, "th2": 3, "th3": 4}
 RECOVERED_TH1_RAD = 0.05
@@ -40,15 +41,15 @@ def angle_limits():
 
 def recovered(run):
     from hostsim.sim.metrics import UPRIGHT_LIMIT_RAD
-    x = run["x"]
-    return bool(run.get("completed", True) and np.all(np.abs(x[:, 2]) < UPRIGHT_LIMIT_RAD)
+    x = run.x
+    return bool(run.completed and np.all(np.abs(x[:, 2]) < UPRIGHT_LIMIT_RAD)
                 and abs(x[-1, 2]) < RECOVERED_TH1_RAD and np.all(np.abs(x[-1, 3:5]) < RECOVERED_TH23_RAD))
 
 
 def trial(base, gains_path, zero_kw, mode, angle, value):
     """One release from `angle` = value: recovered or not."""
     from hostsim.sim.fil import run_firmware
-    from hostsim.sim.linear_sim import GainSet, simulate_nonlinear
+    from hostsim.sim.linear_sim import simulate_nonlinear
     from hostsim.studies.montecarlo import gains_document
 
     sc = dict(base)
@@ -59,7 +60,7 @@ def trial(base, gains_path, zero_kw, mode, angle, value):
     sc["gains"] = gains_path
     doc = gains_document(gains_path, zero_kw)
     if mode == "nonlinear":
-        run = simulate_nonlinear(GainSet(gains_path, doc), sc)
+        run = simulate_nonlinear(gains_from_dict(doc, gains_path), sc)
     else:
         run = run_firmware(sc, gains_doc=doc, sysfs=False, keep_rows=False)
     return recovered(run)

@@ -4,6 +4,7 @@
 ``run_and_write``. Run labels are ``<mode>/<controller>`` (``linear/optimal``,
 ``firmware/pd``, ...).
 """
+import dataclasses
 import json
 import os
 import time
@@ -12,17 +13,19 @@ import numpy as np
 
 from hostsim.sim import metrics as metrics_mod
 from hostsim.sim.fil import pd_gains_document, run_firmware
-from hostsim.sim.linear_sim import GainSet, simulate_linear, simulate_nonlinear
+from hostsim.sim.linear_sim import simulate_linear, simulate_nonlinear
 from hostsim.model.pd import pd_for_gains
+from tipbot_fw.gains import load_gains
 
 
 def run_scenario(sc, modes=None, sysfs=True, say=None):
-    """-> (GainSet, {label: run dict}) for every mode x controller of the scenario."""
-    gs = GainSet(sc["gains"])
+    """-> (Gains, {label: RunResult}) for every mode x controller of the scenario."""
+    gs = load_gains(sc["gains"])
     runs = {}
     for controller in sc["controllers"]:
         k_pd_file = np.array(pd_for_gains(sc["gains"])["K"]) if controller == "pd" else None
-        k_pd = None if k_pd_file is None else gs.gain_to_si(k_pd_file)
+        # x_file = S x_SI, so a gain on the file's state is K_file S on the SI one
+        k_pd = None if k_pd_file is None else k_pd_file * gs.state_scale[None, :]
         for mode in modes or sc["modes"]:
             label = "%s/%s" % (mode, controller)
             t0 = time.perf_counter()
@@ -31,23 +34,27 @@ def run_scenario(sc, modes=None, sysfs=True, say=None):
             elif mode == "nonlinear":
                 run = simulate_nonlinear(gs, sc, k_pd)
             else:
-                doc = None if k_pd_file is None else pd_gains_document(gs.doc, k_pd_file)
+                doc = None if k_pd_file is None else pd_gains_document(_document(sc["gains"]), k_pd_file)
                 run = run_firmware(sc, gains_doc=doc, sysfs=sysfs)
-            run["wall_s"] = time.perf_counter() - t0
-            runs[label] = run
+            run = runs[label] = dataclasses.replace(run, wall_s=time.perf_counter() - t0)
             if say:
-                say("  %-20s %6.2f s simulated in %5.2f s" % (label, run["t_s"][-1], run["wall_s"]))
+                say("  %-20s %6.2f s simulated in %5.2f s" % (label, run.t_s[-1], run.wall_s))
     return gs, runs
+
+
+def _document(path):
+    with open(path) as f:
+        return json.load(f)
 
 
 def scenario_metrics(sc, gs, runs):
     out = {}
     for label, run in runs.items():
         m = metrics_mod.compute(run, sc, gs.u_max_v)
-        m["wall_s"] = round(run["wall_s"], 3)
-        m["real_time_factor"] = round(m["duration_s"] / run["wall_s"], 2) if run["wall_s"] > 0 else None
-        if "exit_code" in run:
-            m["firmware_exit_code"] = run["exit_code"]
+        m["wall_s"] = round(run.wall_s, 3)
+        m["real_time_factor"] = round(m["duration_s"] / run.wall_s, 2) if run.wall_s > 0 else None
+        if run.exit_code is not None:
+            m["firmware_exit_code"] = run.exit_code
         out[label] = m
     return out
 
@@ -87,12 +94,7 @@ def run_and_write(sc, out_dir, modes=None, sysfs=True, plots=True, say=None):
 
 
 def _flatten(runs):
-    out = {}
-    for label, run in runs.items():
-        for key, value in run.items():
-            if isinstance(value, np.ndarray):
-                out["%s/%s" % (label, key)] = value
-    return out
+    return {"%s/%s" % (label, key): value for label, run in runs.items() for key, value in run.arrays().items()}
 
 
 SUMMARY_COLUMNS = (

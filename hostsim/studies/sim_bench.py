@@ -36,10 +36,10 @@ def measure(duration_s=10.0, repeat=3, mc_runs=None, jobs=None, say=print):
     # the shipped gains cannot balance (see the report) the bench zeroes it.
     zero_kw = False
     _, probe = _time_run(base, False, 1, montecarlo.gains_document(base["gains"], False))
-    if not probe["completed"]:
+    if not probe.completed:
         zero_kw = True
         say("(the shipped gains stop after %.2f s: %s; timing with K_w = 0, which balances and costs the same)"
-            % (probe["t_s"][-1], probe["stop_reason"]))
+            % (probe.t_s[-1], probe.stop_reason))
     doc = montecarlo.gains_document(base["gains"], zero_kw)
     out["zero_kw"] = zero_kw
     for method in ("heun", "rk4"):
@@ -47,11 +47,11 @@ def measure(duration_s=10.0, repeat=3, mc_runs=None, jobs=None, say=print):
             sc = dict(base, plant_method=method)
             wall, run = _time_run(sc, sysfs, repeat, doc)
             key = "%s/%s" % ("sysfs" if sysfs else "memory", method)
-            simulated = float(run["t_s"][-1])
-            out[key] = {"wall_s": wall, "real_time_factor": simulated / wall, "completed": bool(run["completed"])}
+            simulated = float(run.t_s[-1])
+            out[key] = {"wall_s": wall, "real_time_factor": simulated / wall, "completed": bool(run.completed)}
             say("firmware in the loop, %-6s device, %-4s plant: %5.2f s per %g s run, real-time factor %5.1f%s"
                 % ("sysfs" if sysfs else "memory", method, wall, simulated, simulated / wall,
-                   "" if run["completed"] else " (the firmware stopped early: %s)" % run["stop_reason"]))
+                   "" if run.completed else " (the firmware stopped early: %s)" % run.stop_reason))
     jobs = default_jobs() if jobs is None else jobs
     mc_runs = mc_runs or 4 * jobs
     t0 = time.perf_counter()
