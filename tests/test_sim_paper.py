@@ -6,6 +6,7 @@ firmware-in-the-loop runs are held to what must be true whatever the firmware's 
 start near the equilibrium (Section 8, Appendix D) they must balance.
 """
 import os
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -26,10 +27,8 @@ ACT = [0, 1, 3, 4]
 def shortened(name, duration_s, shift_s=0.0):
     """The scenario cut to duration_s, its disturbances moved earlier by shift_s."""
     sc = load_scenario(name)
-    sc["duration_s"] = duration_s
-    sc["disturbances"] = [dict(d, t_start_s=d["t_start_s"] - shift_s, t_end_s=d["t_end_s"] - shift_s)
-                          for d in sc["disturbances"]]
-    return sc
+    return replace(sc, duration_s=duration_s, disturbances=tuple(
+        replace(d, t_start_s=d.t_start_s - shift_s, t_end_s=d.t_end_s - shift_s) for d in sc.disturbances))
 
 
 def run_metrics(sc, modes):
@@ -46,7 +45,7 @@ def section7():
 def test_section7_demands_about_20_volts_at_the_first_step(section7):
     sc, (gs, runs, m) = section7
     # |K x(0)| from the printed x(0) is 19-25 V (shared/paper/README.md), far above 7.6 V.
-    k_x0 = np.abs(gs.K @ np.array(sc["x0_si"]))[ACT]
+    k_x0 = np.abs(gs.K @ np.array(sc.x0_si))[ACT]
     assert 15.0 < k_x0.max() < 30.0
     lin = m["linear/optimal"]
     assert max(abs(v) for v in lin["u0_unsat_v"]) > 15.0
@@ -123,7 +122,7 @@ def test_firmware_runs_of_the_paper_scenarios_keep_the_invariants(name, duration
     assert np.all(np.abs(run.u_cmd[:, ACT]) <= U_MAX + 1e-9)
     # The estimate starts at the first measurement, not at the scenario's x~(0).
     assert np.allclose(run.xhat[0], run.y[0])
-    assert np.abs(run.xhat[0, 2:5] - np.array(sc["x0_si"][2:5])).max() < 0.02
+    assert np.abs(run.xhat[0, 2:5] - np.array(sc.x0_si[2:5])).max() < 0.02
     # The wheel origin (hostsim.fil): shifted by d_origin_m, the firmware's measured d is the
     # plant's, to an encoder count and the th1 estimate's error times R_w.
     early = run.t_s <= 0.3
@@ -140,7 +139,7 @@ def test_firmware_balances_with_the_shipped_gains(name):
 
 def test_linear_and_nonlinear_agree_near_equilibrium():
     sc = load_scenario("near_equilibrium")
-    g = load_gains(sc["gains"])
+    g = load_gains(sc.gains)
     lin, nl = simulate_linear(g, sc), simulate_nonlinear(g, sc)
     assert np.max(np.abs(lin.x[:, 2] - nl.x[:, 2])) < 2e-4
     assert np.max(np.abs(lin.u - nl.u)) < 0.05

@@ -6,7 +6,7 @@ import re
 
 import pytest
 
-from hostsim.sim.scenario import SCENARIO_DIR, ScenarioError, load_scenario, parse_scenario
+from hostsim.sim.scenario import SCENARIO_DIR, Disturbance, ScenarioError, load_scenario, parse_scenario
 
 SHIPPED = sorted(glob.glob(os.path.join(SCENARIO_DIR, "*.json")))
 
@@ -19,17 +19,17 @@ def test_the_paper_scenarios_are_shipped():
 @pytest.mark.parametrize("path", SHIPPED, ids=lambda p: os.path.basename(p))
 def test_shipped_scenarios_parse(path):
     sc = load_scenario(path)
-    assert os.path.exists(sc["gains"])
-    assert len(sc["x0_si"]) == 10
+    assert os.path.exists(sc.gains)
+    assert len(sc.x0_si) == 10
 
 
 def test_section7_is_the_printed_initial_state_in_si():
     sc = load_scenario("section7")
     # Printed with d in cm: x(0) = [2 2 0.1 0.1 0.1 0 ...], x~(0) = [1 1 0.05 0.05 0.05 1 1 1 1 1].
-    assert sc["x0_si"] == pytest.approx([0.02, 0.02, 0.1, 0.1, 0.1, 0, 0, 0, 0, 0])
-    assert sc["xhat0_si"] == pytest.approx([0.01, 0.01, 0.05, 0.05, 0.05, 0.01, 0.01, 1, 1, 1])
-    assert sc["duration_s"] == 4.0
-    assert sc["disturbances"] == [{"t_start_s": 1.5, "t_end_s": 2.0, "w_v": [1, 1, 0, 0, 0]}]
+    assert sc.x0_si == pytest.approx((0.02, 0.02, 0.1, 0.1, 0.1, 0, 0, 0, 0, 0))
+    assert sc.xhat0_si == pytest.approx((0.01, 0.01, 0.05, 0.05, 0.05, 0.01, 0.01, 1, 1, 1))
+    assert sc.duration_s == 4.0
+    assert sc.disturbances == (Disturbance(1.5, 2.0, (1, 1, 0, 0, 0)),)
 
 
 @pytest.mark.parametrize("doc, message", [

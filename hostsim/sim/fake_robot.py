@@ -63,24 +63,24 @@ class RealTimeRobot:
     def __init__(self, sc, root, params=None, hold_s=DEFAULT_HOLD_S):
         self.sc = sc
         nominal = load_params() if params is None else params
-        p = scaled_params(sc["param_scale"], nominal)
-        self.model = RobotModel(sc["plant_variant"], p)
+        p = scaled_params(sc.param_scale, nominal)
+        self.model = RobotModel(sc.plant_variant, p)
         to_model = 1.0 / np.diag(state_scale_to_si(self.model.variant))
-        self.plant = Plant(self.model, np.array(sc["x0_si"]) * to_model, dt_s=PLANT_DT_S)
+        self.plant = Plant(self.model, np.array(sc.x0_si) * to_model, dt_s=PLANT_DT_S)
         self.config = firmware_config(sc, nominal["rw_m"])
-        s = sc["sensors"]
-        self.battery_v = s["battery_v"]
-        self.rng = np.random.default_rng(sc["seed"])
+        s = sc.sensors
+        self.battery_v = s.battery_v
+        self.rng = np.random.default_rng(sc.seed)
         signs = tuple(self.config["polarity"][r] for r in MOTOR_ROLES)
-        self.sensors = SensorModel(p["rw_m"], motor_signs=signs, gyro_sign=int(s["gyro_sign"]),
-                                   gyro_bias_dps=s["gyro_bias_dps"], gyro_noise_dps=s["gyro_noise_dps"],
+        self.sensors = SensorModel(p["rw_m"], motor_signs=signs, gyro_sign=int(s.gyro_sign),
+                                   gyro_bias_dps=s.gyro_bias_dps, gyro_noise_dps=s.gyro_noise_dps,
                                    rng=self.rng, battery_v=self.battery_v)
         self.ports = tuple(self.config["ports"][r] for r in MOTOR_ROLES)
         if self.ports != DEFAULT_MOTOR_PORTS:
             raise ValueError("the fake EV3 has its motors on %s" % (DEFAULT_MOTOR_PORTS,))
         self.fake = FakeEV3(root_dir=root, battery_v=self.battery_v)
         self.hold_s = hold_s
-        self.pushes = sorted((q["t_s"], q["th1_dot_rad_s"]) for q in sc["pushes"])
+        self.pushes = sorted((q.t_s, q.th1_dot_rad_s) for q in sc.pushes)
         self.t_s = 0.0
         self.t_release_s = None
         self.t_gyro_mode_s = None
@@ -190,7 +190,7 @@ def main(argv=None):
         if a.write_config:
             with open(a.write_config, "w") as f:
                 json.dump(robot.config, f, indent=1, sort_keys=True)
-        print("fake_robot: ready, sysfs root %s (scenario %s)" % (robot.fake.sysfs_root, sc["name"]), flush=True)
+        print("fake_robot: ready, sysfs root %s (scenario %s)" % (robot.fake.sysfs_root, sc.name), flush=True)
         stats = run_realtime(robot, a.duration, a.step_ms * 1e-3, stop=lambda: bool(stopping))
     finally:
         robot.close()

@@ -55,14 +55,14 @@ _EPS_S = 1e-9
 def firmware_config(sc, rw_m, overrides=None):
     """The firmware's configuration for a scenario: defaults + what the scenario implies."""
     doc = {
-        "start_pose_rad": {"th1": sc["x0_si"][2], "th2": sc["x0_si"][3], "th3": sc["x0_si"][4]},
-        "gyro_sign": int(sc["sensors"]["gyro_sign"]),
+        "start_pose_rad": {"th1": sc.x0_si[2], "th2": sc.x0_si[3], "th3": sc.x0_si[4]},
+        "gyro_sign": int(sc.sensors.gyro_sign),
         "wheel_radius_m": rw_m,
         "realtime_priority": 0,
     }
     if overrides:
         doc.update(overrides)
-    return fw_config.config_from_overrides(doc, "<scenario %s>" % sc["name"])
+    return fw_config.config_from_overrides(doc, "<scenario %s>" % sc.name)
 
 
 def calibration_end_s(config, ts_s):
@@ -86,11 +86,11 @@ class World:
         self.rng = rng
         self.devices = None                     # MemoryDevices, when not on the fake
         self.ports = None                       # fake EV3 motor ports, in MOTOR_ROLES order
-        self.battery_v = sc["sensors"]["battery_v"]
-        self.pushes = sorted((t_release_s + p["t_s"], p["th1_dot_rad_s"]) for p in sc["pushes"])
-        edges = {d[k] for d in sc["disturbances"] for k in ("t_start_s", "t_end_s")}
+        self.battery_v = sc.sensors.battery_v
+        self.pushes = sorted((t_release_s + p.t_s, p.th1_dot_rad_s) for p in sc.pushes)
+        edges = {t for d in sc.disturbances for t in (d.t_start_s, d.t_end_s)}
         self.breaks = sorted({t_release_s + t for t in edges} | {t for t, _ in self.pushes})
-        self.delay = [np.zeros(5)] * sc["extra_delay_ticks"]
+        self.delay = [np.zeros(5)] * sc.extra_delay_ticks
         self.v_prev = np.zeros(5)
         self.readings = None
         self.log_t, self.log_x, self.log_u, self.log_w = [], [], [], []
@@ -139,8 +139,8 @@ class World:
         if self.fake is not None:
             # Where each loop iteration's sysfs operations end in the fake's client-I/O log.
             self.io_marks.append(len(self.fake.io.log))
-        if self.sc["jitter_s"] > 0:
-            late = abs(self.rng.normal(0.0, self.sc["jitter_s"]))
+        if self.sc.jitter_s > 0:
+            late = abs(self.rng.normal(0.0, self.sc.jitter_s))
             t_to = t_to + round(late / PLANT_DT_S) * PLANT_DT_S
             self.clock.t = t_to
         self.delay.append(self.motor_volts())
@@ -196,7 +196,7 @@ def run_firmware(sc, gains_path=None, gains_doc=None, sysfs=True, log_path=None,
                  config_overrides=None):
     """Run a scenario with the firmware in the loop.
 
-    gains_doc (a parsed gains document) replaces the file at gains_path / sc["gains"].
+    gains_doc (a parsed gains document) replaces the file at gains_path / sc.gains.
     keep_rows: read the firmware's log back for its estimates (a temporary log unless
     log_path is given); without it only the plant's side is returned.
 
@@ -208,30 +208,30 @@ def run_firmware(sc, gains_path=None, gains_doc=None, sysfs=True, log_path=None,
     firmware's, shifted into the scenario's frame), u_cmd (the inputs the firmware applied),
     u_unsat (before saturation).
     """
-    gains_path = gains_path or sc["gains"]
-    rng = np.random.default_rng(sc["seed"])
+    gains_path = gains_path or sc.gains
+    rng = np.random.default_rng(sc.seed)
     nominal = load_params() if params is None else params
-    p = scaled_params(sc["param_scale"], nominal)
-    model = RobotModel(sc["plant_variant"], p)
+    p = scaled_params(sc.param_scale, nominal)
+    model = RobotModel(sc.plant_variant, p)
     to_model = 1.0 / np.diag(state_scale_to_si(model.variant))
-    plant = Plant(model, np.array(sc["x0_si"]) * to_model, dt_s=PLANT_DT_S, method=sc["plant_method"])
+    plant = Plant(model, np.array(sc.x0_si) * to_model, dt_s=PLANT_DT_S, method=sc.plant_method)
     if gains_doc is not None:
-        gains = gains_from_dict(gains_doc, "<%s gains for %s>" % (gains_doc["model_variant"], sc["name"]))
+        gains = gains_from_dict(gains_doc, "<%s gains for %s>" % (gains_doc["model_variant"], sc.name))
     else:
         gains = load_gains(gains_path)
     config = firmware_config(sc, nominal["rw_m"], config_overrides)
-    s = sc["sensors"]
+    s = sc.sensors
     signs = tuple(config["polarity"][r] for r in MOTOR_ROLES)
-    sensors = SensorModel(p["rw_m"], motor_signs=signs, gyro_sign=int(s["gyro_sign"]),
-                          gyro_bias_dps=s["gyro_bias_dps"], gyro_noise_dps=s["gyro_noise_dps"], rng=rng,
-                          battery_v=s["battery_v"])
+    sensors = SensorModel(p["rw_m"], motor_signs=signs, gyro_sign=int(s.gyro_sign),
+                          gyro_bias_dps=s.gyro_bias_dps, gyro_noise_dps=s.gyro_noise_dps, rng=rng,
+                          battery_v=s.battery_v)
     t_release = calibration_end_s(config, gains.ts_s)
     fake = None
     if sysfs:
         from hostsim.world.fake_ev3 import FakeEV3
         from tipbot_fw.ev3io import Ev3Devices
-        fake = FakeEV3(battery_v=s["battery_v"])
-    world = World(sc, plant, sensors, gains.ts_s, t_release, fake=fake, io_latency_s=sc["io_latency_s"], rng=rng)
+        fake = FakeEV3(battery_v=s.battery_v)
+    world = World(sc, plant, sensors, gains.ts_s, t_release, fake=fake, io_latency_s=sc.io_latency_s, rng=rng)
     clock = VirtualClock(on_sleep=world.on_sleep)
     world.clock = clock
     tmp = None
@@ -247,7 +247,7 @@ def run_firmware(sc, gains_path=None, gains_doc=None, sysfs=True, log_path=None,
             world.devices = devices
         try:
             code, header = run_session(devices, gains, config, clock, log_path=log_path,
-                                       duration_s=sc["duration_s"], say=lambda msg: None)
+                                       duration_s=sc.duration_s, say=lambda msg: None)
         finally:
             devices.close()
         rows = logfile.read_log(log_path)[1] if keep_rows and os.path.exists(log_path) else None
@@ -259,7 +259,7 @@ def run_firmware(sc, gains_path=None, gains_doc=None, sysfs=True, log_path=None,
     if not world.released:                      # stopped at its first tick
         world._record(t_release)
     rw = config["wheel_radius_m"]
-    x0 = sc["x0_si"]
+    x0 = sc.x0_si
     d_origin = np.array([x0[0] - rw * x0[2], x0[1] - rw * x0[2]])
     out = _world_side(world)
     if fake is not None:

@@ -66,9 +66,9 @@ def truth_linear_model(g, sc, params=None):
     The gains' own model when the scenario's plant is that model unperturbed (so Section 7
     runs on exactly the paper's matrices), else the linearization of the scenario's plant.
     """
-    if sc["plant_variant"] == g.model_variant and not sc["param_scale"]:
+    if sc.plant_variant == g.model_variant and not sc.param_scale:
         return g.A, g.B
-    return design.discrete_model_si(RobotModel(sc["plant_variant"], scaled_params(sc["param_scale"], params)),
+    return design.discrete_model_si(RobotModel(sc.plant_variant, scaled_params(sc.param_scale, params)),
                                     g.ts_s)
 
 
@@ -92,11 +92,11 @@ class _Recorder:
 
 
 def _simulate(g, sc, k_pd, x0, step, fallen):
-    n_steps = int(round(sc["duration_s"] / g.ts_s))
-    xhat0 = sc["xhat0_si"] if sc["xhat0_si"] is not None else sc["x0_si"]
+    n_steps = int(round(sc.duration_s / g.ts_s))
+    xhat0 = sc.xhat0_si if sc.xhat0_si is not None else sc.x0_si
     x = np.array(x0, dtype=float)
     ctl = HostController(g, xhat0, g.C @ x, k_pd)
-    pending = [np.zeros(5)] * sc["extra_delay_ticks"]
+    pending = [np.zeros(5)] * sc.extra_delay_ticks
     rec = _Recorder(n_steps)
     for k in range(n_steps + 1):
         t = k * g.ts_s
@@ -112,7 +112,7 @@ def _simulate(g, sc, k_pd, x0, step, fallen):
 def simulate_linear(g, sc, k_pd=None, params=None):
     """Run a scenario on the linear model -> RunResult (SI)."""
     a, b = truth_linear_model(g, sc, params)
-    return _simulate(g, sc, k_pd, sc["x0_si"], lambda x, u, t: a @ x + b @ u, lambda x: False)
+    return _simulate(g, sc, k_pd, sc.x0_si, lambda x, u, t: a @ x + b @ u, lambda x: False)
 
 
 def simulate_nonlinear(g, sc, k_pd=None, params=None, fall_rad=np.pi / 2):
@@ -121,10 +121,10 @@ def simulate_nonlinear(g, sc, k_pd=None, params=None, fall_rad=np.pi / 2):
     Stops early (completed=False) when |th1| passes fall_rad: the model means nothing once
     the robot lies on the floor.
     """
-    model = RobotModel(sc["plant_variant"], scaled_params(sc["param_scale"], params))
+    model = RobotModel(sc.plant_variant, scaled_params(sc.param_scale, params))
     to_si = np.diag(state_scale_to_si(model.variant))
-    plant = Plant(model, np.array(sc["x0_si"]) / to_si, dt_s=PLANT_DT_S, method=sc["plant_method"])
-    pushes = sorted((p["t_s"], p["th1_dot_rad_s"]) for p in sc["pushes"])
+    plant = Plant(model, np.array(sc.x0_si) / to_si, dt_s=PLANT_DT_S, method=sc.plant_method)
+    pushes = sorted((p.t_s, p.th1_dot_rad_s) for p in sc.pushes)
 
     def step(x, u, t):
         t_end = t + g.ts_s
@@ -137,4 +137,4 @@ def simulate_nonlinear(g, sc, k_pd=None, params=None, fall_rad=np.pi / 2):
         plant.advance(u, t_end - t)
         return plant.x_si
 
-    return _simulate(g, sc, k_pd, sc["x0_si"], step, lambda x: abs(x[2]) > fall_rad)
+    return _simulate(g, sc, k_pd, sc.x0_si, step, lambda x: abs(x[2]) > fall_rad)

@@ -36,8 +36,8 @@ def settle_time(t, y, band):
 
 
 def disturbance_windows(sc, t_end):
-    return [(d["t_start_s"], min(t_end, d["t_end_s"] + AFTER_DISTURBANCE_S))
-            for d in sc["disturbances"] if d["t_start_s"] < t_end and any(d["w_v"])]
+    return [(d.t_start_s, min(t_end, d.t_end_s + AFTER_DISTURBANCE_S))
+            for d in sc.disturbances if d.t_start_s < t_end and any(d.w_v)]
 
 
 def compute(run, sc, u_max_v):
@@ -57,7 +57,7 @@ def compute(run, sc, u_max_v):
         "u_max_v": [_f(v) for v in np.max(u[:, ACTUATED_INPUTS], axis=0)],
         "saturated_fraction": _f(np.mean(sat)),
         "last_saturated_s": _f(t[np.nonzero(sat)[0][-1]]) if sat.any() else None,
-        "settle_time_s": settle_time(t, th1, sc["settle_band_rad"]),
+        "settle_time_s": settle_time(t, th1, sc.settle_band_rad),
         "final_abs_th1_rad": _f(abs(th1[-1])),
         "final_abs_d_m": _f(np.max(np.abs(x[-1, :2] - origin))),
     }

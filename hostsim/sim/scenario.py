@@ -7,7 +7,7 @@ rad/s, in ``x0_si``/``xhat0_si``; or as the paper prints them, d and d' in cm an
 and parameter perturbations, sensor imperfections, extra delay, loop jitter. Unknown or
 malformed fields are errors naming the field.
 
-Each scenario runs in one or more ``modes`` (hostsim.runner):
+Each scenario runs in one or more ``modes`` (hostsim.studies.runner):
 
 - ``linear``: the paper's simulation, the discrete linear model with the detector and the
   control law, ideal full-state measurement (y = x), saturation at u_max_v. The plant is
@@ -17,14 +17,16 @@ Each scenario runs in one or more ``modes`` (hostsim.runner):
   input held over each tick), still with y = x: what the model's nonlinearity and the
   saturation do, without the firmware's signal chain.
 - ``firmware``: the unmodified firmware (tipbot_fw) against the nonlinear plant and the
-  sensor models (hostsim.fil). Its estimate starts from the first measurement, as on the
+  sensor models (hostsim.sim.fil). Its estimate starts from the first measurement, as on the
   robot (``xhat0`` does not apply), and its wheel-position origin is where the wheels stand
-  at start (see hostsim.fil).
+  at start (see hostsim.sim.fil).
 
 ``controllers``: ``optimal`` (LQR + detector + K_w) and/or ``pd`` (the Appendix D
-baseline of hostsim.pd); each mode runs once per controller.
+baseline of hostsim.model.pd); each mode runs once per controller.
 """
+import dataclasses
 import os
+from typing import Optional
 
 from hostsim.errors import TipbotError
 from hostsim.model.params import REQUIRED
@@ -61,12 +63,59 @@ DEFAULTS = {
     "settle_band_rad": 0.02,          # |th1| band for the settling time
     "expect": {},                     # optional pass criteria checked by `hostsim run`
 }
-SENSOR_DEFAULTS = {
-    "gyro_bias_dps": 0.0,
-    "gyro_noise_dps": 0.0,
-    "gyro_sign": 1,
-    "battery_v": 8.0,
-}
+
+
+@dataclasses.dataclass(frozen=True)
+class Disturbance:
+    """Volts added to the inputs [u_r, u_l, -, u_th2, u_th3] from t_start_s to t_end_s."""
+    t_start_s: float
+    t_end_s: float
+    w_v: tuple
+
+
+@dataclasses.dataclass(frozen=True)
+class Push:
+    """An impulse on link 1: its rate jumps by th1_dot_rad_s at t_s."""
+    t_s: float
+    th1_dot_rad_s: float
+
+
+@dataclasses.dataclass(frozen=True)
+class Sensors:
+    """Sensor imperfections and the battery (hostsim.world.sensors)."""
+    gyro_bias_dps: float = 0.0
+    gyro_noise_dps: float = 0.0
+    gyro_sign: int = 1
+    battery_v: float = 8.0
+
+
+SENSOR_DEFAULTS = dataclasses.asdict(Sensors())
+
+
+@dataclasses.dataclass(frozen=True)
+class Scenario:
+    """A parsed, validated scenario (see the module docstring and DEFAULTS); SI units, the
+    gains path absolute once loaded from a file. Vary one with dataclasses.replace."""
+    name: str
+    description: str
+    duration_s: float
+    gains: str
+    controllers: tuple
+    plant_variant: str
+    plant_method: str
+    param_scale: dict
+    x0_si: tuple
+    xhat0_si: Optional[tuple]
+    disturbances: tuple
+    pushes: tuple
+    sensors: Sensors
+    extra_delay_ticks: int
+    io_latency_s: float
+    jitter_s: float
+    seed: int
+    modes: tuple
+    settle_band_rad: float
+    expect: dict
 # expect: {"<mode>/<controller>": {key: bound}}; every bound is an upper limit except upright.
 EXPECT_KEYS = ("max_abs_th1_rad", "max_abs_th2_rad", "max_abs_th3_rad", "settle_time_s", "max_abs_u_v",
                "final_abs_d_m", "final_est_error", "upright")
@@ -87,7 +136,7 @@ def _vector(f, field, value, length):
 
 
 def parse_scenario(doc, src="<scenario>"):
-    """Validate a scenario document and fill in defaults; returns a new dict."""
+    """Validate a scenario document and fill in defaults -> Scenario."""
     if not isinstance(doc, dict):
         raise ScenarioError("%s: a scenario is a JSON object" % src)
     f = fields.Fields(src, ScenarioError)
@@ -151,7 +200,13 @@ def parse_scenario(doc, src="<scenario>"):
         f.known(bounds, EXPECT_KEYS, name + ".")
         for k, v in bounds.items():
             f.check("%s.%s" % (name, k), v, fields.boolean if k == "upright" else POSITIVE)
-    return sc
+    sc.update(controllers=tuple(sc["controllers"]), modes=tuple(sc["modes"]), x0_si=tuple(sc["x0_si"]),
+              xhat0_si=None if sc["xhat0_si"] is None else tuple(sc["xhat0_si"]),
+              disturbances=tuple(Disturbance(float(d["t_start_s"]), float(d["t_end_s"]), tuple(float(v) for v in d["w_v"]))
+                                 for d in sc["disturbances"]),
+              pushes=tuple(Push(float(q["t_s"]), float(q["th1_dot_rad_s"])) for q in sc["pushes"]),
+              sensors=Sensors(**sensors), param_scale=dict(sc["param_scale"]), expect=dict(sc["expect"]))
+    return Scenario(**sc)
 
 
 def _exactly(f, name, value, keys):
@@ -185,15 +240,15 @@ def load_scenario(path):
         if os.path.exists(candidate):
             path = candidate
     sc = parse_scenario(fields.read_json(path, ScenarioError)[0], path)
-    if not os.path.isabs(sc["gains"]):
-        sc["gains"] = os.path.join(REPO_ROOT, sc["gains"])
+    if not os.path.isabs(sc.gains):
+        sc = dataclasses.replace(sc, gains=os.path.join(REPO_ROOT, sc.gains))
     return sc
 
 
 def disturbance_at(sc, t_s):
     """The disturbance vector w (volts, 5) in force at time t_s."""
     w = [0.0] * 5
-    for d in sc["disturbances"]:
-        if d["t_start_s"] <= t_s < d["t_end_s"]:
-            w = [a + b for a, b in zip(w, d["w_v"])]
+    for d in sc.disturbances:
+        if d.t_start_s <= t_s < d.t_end_s:
+            w = [a + b for a, b in zip(w, d.w_v)]
     return w

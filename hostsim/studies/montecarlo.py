@@ -22,6 +22,7 @@ compared on identical robots). A run succeeds when the firmware completes the du
 Results do not depend on --jobs (see hostsim.parallel).
 """
 import argparse
+import dataclasses
 import json
 import os
 import time
@@ -62,19 +63,14 @@ def draw(rng):
 
 
 def scenario_for(base, d, duration_s=None):
-    sc = dict(base)
-    sc["param_scale"] = d["param_scale"]
-    sensors = dict(base["sensors"])
-    sensors.update(gyro_bias_dps=d["gyro_bias_dps"], gyro_noise_dps=d["gyro_noise_dps"])
-    sc["sensors"] = sensors
-    sc["extra_delay_ticks"] = d["extra_delay_ticks"]
-    sc["jitter_s"] = d["jitter_s"]
-    sc["seed"] = d["seed"]
-    x0 = list(base["x0_si"])
+    x0 = list(base.x0_si)
     x0[2] = d["th1_0_rad"]
-    sc["x0_si"] = x0
+    sc = dataclasses.replace(
+        base, param_scale=d["param_scale"], extra_delay_ticks=d["extra_delay_ticks"], jitter_s=d["jitter_s"],
+        seed=d["seed"], x0_si=tuple(x0),
+        sensors=dataclasses.replace(base.sensors, gyro_bias_dps=d["gyro_bias_dps"], gyro_noise_dps=d["gyro_noise_dps"]))
     if duration_s is not None:
-        sc["duration_s"] = float(duration_s)
+        sc = dataclasses.replace(sc, duration_s=float(duration_s))
     return sc
 
 
@@ -151,16 +147,16 @@ def run_montecarlo(runs=200, duration_s=None, gains_paths=DEFAULT_GAINS, kw0=Fal
              for label, path, zk in variants(gains_paths, kw0, only_kw0) for i in range(runs)]
     jobs = default_jobs() if jobs is None else jobs
     t0 = time.perf_counter()
-    rows = run_tasks(run_one, tasks, jobs=jobs, desc=desc, warm=lambda: warm_models((base["plant_variant"],)))
+    rows = run_tasks(run_one, tasks, jobs=jobs, desc=desc, warm=lambda: warm_models((base.plant_variant,)))
     wall = time.perf_counter() - t0
     out = {}
     for label, _, _ in variants(gains_paths, kw0, only_kw0):
         mine = [r for r in rows if r["gains"] == label]
         out[label] = {"runs": mine, "summary": summarize(mine)}
-    out["_meta"] = {"runs_per_gains": runs, "duration_s": duration_s or base["duration_s"], "jobs": jobs,
+    out["_meta"] = {"runs_per_gains": runs, "duration_s": duration_s or base.duration_s, "jobs": jobs,
                     "seed": seed, "wall_s": wall, "total_runs": len(tasks),
                     "runs_per_s": len(tasks) / wall if wall > 0 else None,
-                    "plant_variant": base["plant_variant"], "plant_method": base["plant_method"]}
+                    "plant_variant": base.plant_variant, "plant_method": base.plant_method}
     return out
 
 

@@ -42,10 +42,10 @@ def _style(label):
 
 
 def _shade(ax, sc):
-    end = sc["duration_s"]
-    for d in sc["disturbances"]:
-        if any(d["w_v"]) and d["t_start_s"] < end:
-            ax.axvspan(d["t_start_s"], min(d["t_end_s"], end), color="0.88", zorder=0)
+    end = sc.duration_s
+    for d in sc.disturbances:
+        if any(d.w_v) and d.t_start_s < end:
+            ax.axvspan(d.t_start_s, min(d.t_end_s, end), color="0.88", zorder=0)
     ax.set_xlim(0.0, end)
 
 
@@ -98,7 +98,7 @@ def _optimal(runs):
 
 
 def states_estimates(sc, runs, path):
-    fig, axes = _grid(5, 2, "%s: states (solid) and estimates (dotted), cf. paper Figure 5" % sc["name"])
+    fig, axes = _grid(5, 2, "%s: states (solid) and estimates (dotted), cf. paper Figure 5" % sc.name)
     # Column-major like the paper: positions left (a-e), rates right (f-j).
     _state_panels(axes.T, sc, runs, range(10), estimates=True)
     _xlabel(axes)
@@ -106,28 +106,28 @@ def states_estimates(sc, runs, path):
 
 
 def estimation_errors(sc, runs, path):
-    fig, axes = _grid(5, 2, "%s: estimation errors x~ - x, cf. paper Figure 6" % sc["name"])
+    fig, axes = _grid(5, 2, "%s: estimation errors x~ - x, cf. paper Figure 6" % sc.name)
     _state_panels(axes.T, sc, runs, range(10), errors=True)
     _xlabel(axes)
     return _save(fig, path)
 
 
 def positions(sc, runs, path):
-    fig, axes = _grid(5, 1, "%s: positions, cf. paper Figure 8" % sc["name"])
+    fig, axes = _grid(5, 1, "%s: positions, cf. paper Figure 8" % sc.name)
     _state_panels(axes, sc, runs, range(5))
     _xlabel(axes)
     return _save(fig, path)
 
 
 def velocities(sc, runs, path):
-    fig, axes = _grid(5, 1, "%s: velocities, cf. paper Figure 9" % sc["name"])
+    fig, axes = _grid(5, 1, "%s: velocities, cf. paper Figure 9" % sc.name)
     _state_panels(axes, sc, runs, range(5, 10))
     _xlabel(axes)
     return _save(fig, path)
 
 
 def inputs(sc, runs, u_max_v, path):
-    fig, axes = _grid(4, 1, "%s: control inputs, cf. paper Figure 10 (dashed: before saturation)" % sc["name"])
+    fig, axes = _grid(4, 1, "%s: control inputs, cf. paper Figure 10 (dashed: before saturation)" % sc.name)
     for p, (i, name) in enumerate(INPUT_LABELS):
         ax = axes.flat[p]
         _shade(ax, sc)
@@ -151,7 +151,7 @@ def compare_controllers(sc, runs, mode, u_max_v, path):
     """Figure A1: optimal against PD, states and inputs, one mode."""
     pair = {k: v for k, v in runs.items() if k.startswith(mode + "/")}
     fig, axes = _grid(7, 2, "%s (%s): optimal controller (solid) vs PD (dashed), cf. paper Figure A1"
-                      % (sc["name"], mode), height=1.8)
+                      % (sc.name, mode), height=1.8)
     _state_panels(axes[:5].T, sc, pair, range(10))
     for p, (i, name) in enumerate(INPUT_LABELS):
         ax = axes[5 + p // 2, p % 2]
@@ -176,7 +176,7 @@ def scenario_plots(sc, runs, u_max_v, out_dir):
         "velocities": velocities(sc, opt, os.path.join(out_dir, "velocities.png")),
         "inputs": inputs(sc, opt, u_max_v, os.path.join(out_dir, "inputs.png")),
     }
-    if len(sc["controllers"]) > 1:
+    if len(sc.controllers) > 1:
         for mode in sorted({label.split("/")[0] for label in runs}):
             out["compare_" + mode] = compare_controllers(sc, runs, mode, u_max_v,
                                                          os.path.join(out_dir, "compare_%s.png" % mode))

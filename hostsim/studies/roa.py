@@ -16,6 +16,7 @@ state) and ``firmware`` (the firmware in the loop, told the start pose as an ope
 would configure it). The difference between the two is what the signal chain costs.
 """
 import argparse
+import dataclasses
 import json
 import os
 import time
@@ -52,12 +53,9 @@ def trial(base, gains_path, zero_kw, mode, angle, value):
     from hostsim.sim.linear_sim import simulate_nonlinear
     from hostsim.studies.montecarlo import gains_document
 
-    sc = dict(base)
     x0 = [0.0] * 10
     x0[ANGLES[angle]] = float(value)
-    sc["x0_si"] = x0
-    sc["xhat0_si"] = None
-    sc["gains"] = gains_path
+    sc = dataclasses.replace(base, x0_si=tuple(x0), xhat0_si=None, gains=gains_path)
     doc = gains_document(gains_path, zero_kw)
     if mode == "nonlinear":
         run = simulate_nonlinear(gains_from_dict(doc, gains_path), sc)
@@ -102,9 +100,9 @@ def run_roa(gains_paths=DEFAULT_GAINS, modes=DEFAULT_MODES, tol=0.01, kw0=False,
     from hostsim.sim.parallel import run_tasks
     from hostsim.sim.scenario import load_scenario
 
-    base = dict(base or load_scenario(BASE_SCENARIO))
+    base = base or load_scenario(BASE_SCENARIO)
     if duration_s is not None:
-        base["duration_s"] = float(duration_s)
+        base = dataclasses.replace(base, duration_s=float(duration_s))
     limits = angle_limits()
     tasks = [(label, path, zk, base, mode, angle, sign, limits[angle], tol)
              for label, path, zk in variants(gains_paths, kw0)
@@ -112,9 +110,9 @@ def run_roa(gains_paths=DEFAULT_GAINS, modes=DEFAULT_MODES, tol=0.01, kw0=False,
              for angle in angles for sign in (1, -1)]
     t0 = time.perf_counter()
     rows = run_tasks(bisect, tasks, jobs=jobs, desc="region of attraction",
-                     warm=lambda: warm_models((base["plant_variant"],)))
-    return {"rows": rows, "wall_s": time.perf_counter() - t0, "tol_rad": tol, "duration_s": base["duration_s"],
-            "plant_variant": base["plant_variant"]}
+                     warm=lambda: warm_models((base.plant_variant,)))
+    return {"rows": rows, "wall_s": time.perf_counter() - t0, "tol_rad": tol, "duration_s": base.duration_s,
+            "plant_variant": base.plant_variant}
 
 
 def format_table(res):

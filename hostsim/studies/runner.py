@@ -20,13 +20,13 @@ from tipbot_fw.gains import load_gains
 
 def run_scenario(sc, modes=None, sysfs=True, say=None):
     """-> (Gains, {label: RunResult}) for every mode x controller of the scenario."""
-    gs = load_gains(sc["gains"])
+    gs = load_gains(sc.gains)
     runs = {}
-    for controller in sc["controllers"]:
-        k_pd_file = np.array(pd_for_gains(sc["gains"])["K"]) if controller == "pd" else None
+    for controller in sc.controllers:
+        k_pd_file = np.array(pd_for_gains(sc.gains)["K"]) if controller == "pd" else None
         # x_file = S x_SI, so a gain on the file's state is K_file S on the SI one
         k_pd = None if k_pd_file is None else k_pd_file * gs.state_scale[None, :]
-        for mode in modes or sc["modes"]:
+        for mode in modes or sc.modes:
             label = "%s/%s" % (mode, controller)
             t0 = time.perf_counter()
             if mode == "linear":
@@ -34,7 +34,7 @@ def run_scenario(sc, modes=None, sysfs=True, say=None):
             elif mode == "nonlinear":
                 run = simulate_nonlinear(gs, sc, k_pd)
             else:
-                doc = None if k_pd_file is None else pd_gains_document(_document(sc["gains"]), k_pd_file)
+                doc = None if k_pd_file is None else pd_gains_document(_document(sc.gains), k_pd_file)
                 run = run_firmware(sc, gains_doc=doc, sysfs=sysfs)
             run = runs[label] = dataclasses.replace(run, wall_s=time.perf_counter() - t0)
             if say:
@@ -64,24 +64,24 @@ def run_and_write(sc, out_dir, modes=None, sysfs=True, plots=True, say=None):
     os.makedirs(out_dir, exist_ok=True)
     gs, runs = run_scenario(sc, modes, sysfs, say)
     per_run = scenario_metrics(sc, gs, runs)
-    expect_report, ok = metrics_mod.check_expectations(per_run, sc["expect"])
+    expect_report, ok = metrics_mod.check_expectations(per_run, sc.expect)
     doc = {
-        "scenario": sc["name"],
-        "description": sc["description"],
-        "gains": os.path.basename(sc["gains"]),
-        "plant_variant": sc["plant_variant"],
-        "plant_method": sc["plant_method"],
-        "duration_s": sc["duration_s"],
+        "scenario": sc.name,
+        "description": sc.description,
+        "gains": os.path.basename(sc.gains),
+        "plant_variant": sc.plant_variant,
+        "plant_method": sc.plant_method,
+        "duration_s": sc.duration_s,
         "u_max_v": gs.u_max_v,
         "firmware_device": "fake EV3 sysfs" if sysfs else "in-memory",
         "runs": per_run,
         "expect": expect_report,
         "expect_ok": ok,
         # What the law asks for at the true initial state: the paper's Section 7 claim.
-        "k_x0_v": [float(v) for v in (-gs.K @ np.asarray(sc["x0_si"]))[[0, 1, 3, 4]]],
+        "k_x0_v": [float(v) for v in (-gs.K @ np.asarray(sc.x0_si))[[0, 1, 3, 4]]],
     }
-    if "pd" in sc["controllers"]:
-        doc["pd"] = pd_for_gains(sc["gains"])
+    if "pd" in sc.controllers:
+        doc["pd"] = pd_for_gains(sc.gains)
     with open(os.path.join(out_dir, "metrics.json"), "w") as f:
         json.dump(doc, f, indent=1, sort_keys=True)
     np.savez_compressed(os.path.join(out_dir, "runs.npz"), **_flatten(runs))
@@ -154,10 +154,10 @@ def main(argv=None):
         modes = None
         if args.modes:
             modes = [m.strip() for m in args.modes.split(",") if m.strip()]
-            bad = [m for m in modes if m not in sc["modes"]]
+            bad = [m for m in modes if m not in sc.modes]
             if bad:
-                raise TipbotError("--modes: %r is not a mode of scenario %s (%s)" % (bad[0], sc["name"], ", ".join(sc["modes"])))
-        out = args.out or out_dir("run", sc["name"])
+                raise TipbotError("--modes: %r is not a mode of scenario %s (%s)" % (bad[0], sc.name, ", ".join(sc.modes)))
+        out = args.out or out_dir("run", sc.name)
         doc = run_and_write(sc, out, modes, sysfs=args.device == "sysfs", plots=not args.no_plots,
                             say=lambda m: print(m, file=sys.stderr))
     except TipbotError as exc:

@@ -9,6 +9,7 @@ physical plant (scenarios/montecarlo_base.json without perturbations):
 - the Monte Carlo throughput on --jobs workers, and the projected time of 200 runs.
 """
 import argparse
+import dataclasses
 import time
 
 
@@ -28,23 +29,22 @@ def measure(duration_s=10.0, repeat=3, mc_runs=None, jobs=None, say=print):
     from hostsim.sim.parallel import default_jobs
     from hostsim.sim.scenario import load_scenario
 
-    base = load_scenario(montecarlo.BASE_SCENARIO)
-    base["duration_s"] = float(duration_s)
-    montecarlo.warm_models((base["plant_variant"],))
+    base = dataclasses.replace(load_scenario(montecarlo.BASE_SCENARIO), duration_s=float(duration_s))
+    montecarlo.warm_models((base.plant_variant,))
     out = {"duration_s": duration_s}
     # A run that falls early times little; K_w does not change the cost of a tick, so when
     # the shipped gains cannot balance (see the report) the bench zeroes it.
     zero_kw = False
-    _, probe = _time_run(base, False, 1, montecarlo.gains_document(base["gains"], False))
+    _, probe = _time_run(base, False, 1, montecarlo.gains_document(base.gains, False))
     if not probe.completed:
         zero_kw = True
         say("(the shipped gains stop after %.2f s: %s; timing with K_w = 0, which balances and costs the same)"
             % (probe.t_s[-1], probe.stop_reason))
-    doc = montecarlo.gains_document(base["gains"], zero_kw)
+    doc = montecarlo.gains_document(base.gains, zero_kw)
     out["zero_kw"] = zero_kw
     for method in ("heun", "rk4"):
         for sysfs in (False, True):
-            sc = dict(base, plant_method=method)
+            sc = dataclasses.replace(base, plant_method=method)
             wall, run = _time_run(sc, sysfs, repeat, doc)
             key = "%s/%s" % ("sysfs" if sysfs else "memory", method)
             simulated = float(run.t_s[-1])
@@ -55,7 +55,7 @@ def measure(duration_s=10.0, repeat=3, mc_runs=None, jobs=None, say=print):
     jobs = default_jobs() if jobs is None else jobs
     mc_runs = mc_runs or 4 * jobs
     t0 = time.perf_counter()
-    res = montecarlo.run_montecarlo(runs=mc_runs, duration_s=duration_s, gains_paths=(base["gains"],),
+    res = montecarlo.run_montecarlo(runs=mc_runs, duration_s=duration_s, gains_paths=(base.gains,),
                                     jobs=jobs, desc="bench", kw0=zero_kw, only_kw0=zero_kw)
     wall = time.perf_counter() - t0
     out["montecarlo"] = {"runs": mc_runs, "jobs": jobs, "wall_s": wall, "runs_per_s": mc_runs / wall,

@@ -88,7 +88,7 @@ def main(argv=None):
     for name in args.scenarios:
         sc = load_scenario(name)
         say("scenario %s" % name)
-        doc = runner.run_and_write(sc, os.path.join(args.out, sc["name"]), sysfs=args.device == "sysfs", say=say)
+        doc = runner.run_and_write(sc, os.path.join(args.out, sc.name), sysfs=args.device == "sysfs", say=say)
         docs.append(doc)
         ok &= doc["expect_ok"]
     roa_res = mc_res = None
