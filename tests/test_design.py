@@ -47,20 +47,20 @@ def test_both_gains_stabilize_both_models(designs):
 def test_detector_condition_and_eigenvalues(designs, variant):
     g = designs[variant]
     n = 10
-    residual = (g["L2"] @ g["C"] - np.eye(n)) @ g["E"]
+    residual = (g.L2 @ g.C - np.eye(n)) @ g.E
     assert np.abs(residual).max() < 1e-12
-    abar = (np.eye(n) - g["L2"] @ g["C"]) @ g["A"]
-    eig = np.linalg.eigvals(abar - g["L1"] @ g["C"])
+    abar = (np.eye(n) - g.L2 @ g.C) @ g.A
+    eig = np.linalg.eigvals(abar - g.L1 @ g.C)
     assert np.allclose(np.sort(eig.real), design.DEFAULT_DETECTOR_POLE, atol=1e-9)
     assert np.abs(eig.imag).max() < 1e-9
     # L2 = E G_w: the detector's L2 term is the disturbance estimate pushed through E.
-    assert np.allclose(g["L2"], g["E"] @ g["G_w"], atol=1e-12)
+    assert np.allclose(g.L2, g.E @ g.G_w, atol=1e-12)
 
 
 def test_detector_converges_under_constant_disturbance(designs):
     """Linear simulation of Section 6: the estimate and w^ converge despite w."""
     g = designs["paper"]
-    a, b, c, e = g["A"], g["B"], g["C"], g["E"]
+    a, b, c, e = g.A, g.B, g.C, g.E
     rng = np.random.default_rng(1)
     x = rng.normal(scale=[1, 1, 0.05, 0.05, 0.05, 1, 1, 0.1, 0.1, 0.1])
     xh = np.zeros(10)
@@ -71,10 +71,10 @@ def test_detector_converges_under_constant_disturbance(designs):
         x_next = a @ x + b @ u + e @ w
         y_next = c @ x_next
         nu = y_next - c @ a @ xh - c @ b @ u
-        w_hat = g["G_w"] @ nu
-        xh = a @ xh + b @ u + g["L1"] @ (y - c @ xh) + g["L2"] @ nu
+        w_hat = g.G_w @ nu
+        xh = a @ xh + b @ u + g.L1 @ (y - c @ xh) + g.L2 @ nu
         x, y = x_next, y_next
-        u = -g["K"] @ xh
+        u = -g.K @ xh
     assert np.abs(xh - x).max() < 1e-9
     assert np.allclose(w_hat, w, atol=1e-9)
 
@@ -82,10 +82,10 @@ def test_detector_converges_under_constant_disturbance(designs):
 def test_finite_horizon_converges_to_steady_state_gain(designs):
     """Section 5.2's 800-step recursion reaches the DARE gain (paper README)."""
     g = designs["paper"]
-    k_seq, ff, _ = design.finite_horizon_lqr(g["A"], g["B"], g["Q"], g["R"], g["Q"], horizon=800)
+    k_seq, ff, _ = design.finite_horizon_lqr(g.A, g.B, g.Q, g.R, g.Q, horizon=800)
     # The slowest closed-loop mode (|eig| 0.9937) leaves about 1e-4 after 800 steps.
-    assert np.allclose(k_seq[0], g["K"], rtol=2e-3, atol=1e-4 * np.abs(g["K"]).max())
-    assert not np.allclose(k_seq[-1], g["K"], rtol=0.1)  # the end of the horizon differs
+    assert np.allclose(k_seq[0], g.K, rtol=2e-3, atol=1e-4 * np.abs(g.K).max())
+    assert not np.allclose(k_seq[-1], g.K, rtol=0.1)  # the end of the horizon differs
     assert np.all(ff == 0)
 
 
@@ -94,34 +94,34 @@ def test_steady_state_feedforward_is_k_w(designs):
     g = designs["physical"]
     w = np.array([1.0, 1.0, 0.0, 0.0, 0.0])
     horizon = 20000
-    k_seq, ff, _ = design.finite_horizon_lqr(g["A"], g["B"], g["Q"], g["R"], g["P"],
-                                             w_seq=np.tile(w, (horizon, 1)), e_mat=g["E"])
-    assert np.allclose(ff[0], -g["K_w"] @ w, rtol=1e-6, atol=1e-9)
+    k_seq, ff, _ = design.finite_horizon_lqr(g.A, g.B, g.Q, g.R, g.P,
+                                             w_seq=np.tile(w, (horizon, 1)), e_mat=g.E)
+    assert np.allclose(ff[0], -g.K_w @ w, rtol=1e-6, atol=1e-9)
     assert np.abs(ff[0]).max() > 0.1  # the disturbance is not negligible
 
 
 def test_k_w_reduces_the_cost_of_a_constant_disturbance(designs):
     g = designs["physical"]
-    a, b, q, r = g["A"], g["B"], g["Q"], g["R"]
+    a, b, q, r = g.A, g.B, g.Q, g.R
     w = np.array([1.0, 1.0, 0.0, 0.0, 0.0])
 
     def cost(kw):
         x = np.zeros(10)
         total = 0.0
         for _ in range(4000):
-            u = -g["K"] @ x - kw @ w
+            u = -g.K @ x - kw @ w
             total += x @ q @ x + u @ r @ u
-            x = a @ x + b @ u + g["E"] @ w
+            x = a @ x + b @ u + g.E @ w
         return total
 
-    assert cost(g["K_w"]) < 0.9 * cost(np.zeros((5, 5)))
+    assert cost(g.K_w) < 0.9 * cost(np.zeros((5, 5)))
 
 
 def test_other_sampling_period(params):
     g = design_gains("physical", params, ts_s=0.010)
     doc = to_document(g)
     assert doc["ts_s"] == 0.01
-    assert np.max(np.abs(g["closed_loop_eigenvalues"])) < 1
+    assert np.max(np.abs(g.closed_loop_eigenvalues)) < 1
     # At 10 ms no wheel weight makes the physical gain hold the paper's model; the file says so.
     assert doc["robust_to_models"]["stabilized"] is False
     assert doc["robust_to_models"]["worst_spectral_radius"] > 1
@@ -129,39 +129,39 @@ def test_other_sampling_period(params):
 
 def test_singular_r_is_refused(designs):
     g = designs["paper"]
-    r = g["R"].copy()
+    r = g.R.copy()
     r[3, 3] = 0.0
     with pytest.raises(DesignError, match="R is singular"):
-        design.dlqr(g["A"], g["B"], g["Q"], r, (0, 1, 3, 4))
+        design.dlqr(g.A, g.B, g.Q, r, (0, 1, 3, 4))
 
 
 def test_dead_input_column_is_refused(designs):
     g = designs["paper"]
-    b = g["B"].copy()
+    b = g.B.copy()
     b[:, 4] = 0.0
     with pytest.raises(DesignError, match="input column 4 of B is zero"):
-        design.dlqr(g["A"], b, g["Q"], g["R"], (0, 1, 3, 4))
+        design.dlqr(g.A, b, g.Q, g.R, (0, 1, 3, 4))
 
 
 def test_unsolvable_detector_condition_is_refused(designs):
     g = designs["paper"]
-    e = g["E"].copy()
+    e = g.E.copy()
     e[:, 3] = e[:, 4]  # two disturbances that act identically cannot be told apart
     with pytest.raises(DesignError, match="not solvable"):
-        design.robust_detector(g["A"], g["B"], g["C"], e, (0, 1, 3, 4))
+        design.robust_detector(g.A, g.B, g.C, e, (0, 1, 3, 4))
 
 
 def test_uncontrollable_system_is_refused(designs):
     g = designs["paper"]
-    a = g["A"].copy()
-    b = g["B"].copy()
+    a = g.A.copy()
+    b = g.B.copy()
     a[9, :] = 0.0
     a[:, 9] = 0.0
     a[9, 9] = 1.2
     b[9, :] = 0.0  # th3' now unreachable and unstable
     b[4, :] = 0.0
     with pytest.raises(DesignError, match="not controllable"):
-        design.dlqr(a, b, g["Q"], g["R"], (0, 1, 3, 4))
+        design.dlqr(a, b, g.Q, g.R, (0, 1, 3, 4))
 
 
 def test_committed_gains_files_are_regenerated_identically(designs):

@@ -118,8 +118,8 @@ def test_roles_given_per_log_and_averaging(logs, tmp_path):
     large = logs["right_wheel"][0]
     # two runs of one motor are averaged; a role per log overrides the logs' own
     fits, groups = I.identify([large, large], roles=["left_wheel"], ra_ohm=8.0)
-    assert len(groups) == 1 and groups[0][0] == "left_wheel" and len(groups[0][2]) == 2
-    assert groups[0][3]["ra_ohm"] == 8.0 and groups[0][4] == "given (--ra-ohm 8)"
+    assert len(groups) == 1 and groups[0].role == "left_wheel" and len(groups[0].fits) == 2
+    assert groups[0].params["ra_ohm"] == 8.0 and groups[0].ra_source == "given (--ra-ohm 8)"
     with pytest.raises(I.IdentifyError, match="--role given 2 times for 1 logs"):
         I.identify([large], roles=["joint2", "joint3"])
 

@@ -35,9 +35,9 @@ def relative_errors(ours, printed, floor=SIGNIFICANT):
 
 def to_si(g):
     """(A, B, K) of a design expressed with the state in SI units."""
-    t = state_scale_to_si(g["variant"])
+    t = state_scale_to_si(g.variant)
     ti = np.linalg.inv(t)
-    return t @ g["A"] @ ti, t @ g["B"], g["K"] @ ti
+    return t @ g.A @ ti, t @ g.B, g.K @ ti
 
 
 def cross_spectral_radii(designs):
@@ -58,16 +58,16 @@ def run(params=None, ts_s=0.005):
     paper = designs["paper"]
     errors = {}
     for key in ("A", "B", "K"):
-        r = relative_errors(paper[key], printed[key])
+        r = relative_errors(getattr(paper, key), printed[key])
         errors[key] = (float(np.median(r)), float(np.max(r)), int(r.size))
     sign_mismatch = {}
     # The physical model, in the paper's units (cm), against the paper's matrices.
-    t_phys = state_scale_to_si(designs["physical"]["variant"])
-    t_paper_inv = np.linalg.inv(state_scale_to_si(paper["variant"]))
+    t_phys = state_scale_to_si(designs["physical"].variant)
+    t_paper_inv = np.linalg.inv(state_scale_to_si(paper.variant))
     conv = t_paper_inv @ t_phys
-    a_phys = conv @ designs["physical"]["A"] @ np.linalg.inv(conv)
-    b_phys = conv @ designs["physical"]["B"]
-    for key, ours, theirs in (("A", a_phys, paper["A"]), ("B", b_phys, paper["B"])):
+    a_phys = conv @ designs["physical"].A @ np.linalg.inv(conv)
+    b_phys = conv @ designs["physical"].B
+    for key, ours, theirs in (("A", a_phys, paper.A), ("B", b_phys, paper.B)):
         mask = np.abs(theirs) > SIGNIFICANT
         rel = np.abs(ours[mask] - theirs[mask]) / np.abs(theirs[mask])
         flips = int(np.sum(np.sign(ours[mask]) != np.sign(theirs[mask])))
