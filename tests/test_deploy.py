@@ -23,8 +23,8 @@ import threading
 import time
 
 import pytest
+from conftest import PAPER_GAINS, PHYSICAL_GAINS, REPO
 
-REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SHEBANG = b"#!/usr/bin/env python3\n"
 
 
@@ -51,7 +51,7 @@ def test_stage_holds_what_the_brick_needs_with_launcher_mode_shebang_and_lf(tmp_
     data, mode = files["tipbot"]
     assert data.startswith(SHEBANG) and b"\r" not in data and mode & stat.S_IXUSR
     assert files["install.sh"][1] & stat.S_IXUSR
-    with open(os.path.join(REPO, "gains", "physical.json"), "rb") as f:
+    with open(PHYSICAL_GAINS, "rb") as f:
         assert files["gains.json"][0] == f.read()
     # the manifest depends on the content only: staging again gives the same bytes
     assert deploy_tool.stage_files("physical", None)[deploy_tool.MANIFEST] == files[deploy_tool.MANIFEST]
@@ -292,7 +292,7 @@ def test_deploy_copies_only_changes_and_installs_a_launcher_brickman_can_start(b
 
     p = brick.make("deploy", "DEPLOY_VARIANT=paper")
     assert "deploy: 1 file changed (gains.json;" in p.stdout, p.stdout
-    with open(os.path.join(REPO, "gains", "paper.json"), "rb") as f, \
+    with open(PAPER_GAINS, "rb") as f, \
             open(os.path.join(brick.install_dir, "gains.json"), "rb") as g:
         assert f.read() == g.read()
 
@@ -403,7 +403,7 @@ def test_run_on_the_brick_fetch_the_log_and_replay_it_exactly(brick, tmp_path):
     assert "logs: 1 new log from testbrick" in p.stdout, p.stdout
     logs = glob.glob(os.path.join(dest, "tipbot-*.log"))
     assert len(logs) == 1
-    with open(os.path.join(REPO, "gains", "physical.json"), "rb") as f:
+    with open(PHYSICAL_GAINS, "rb") as f:
         sha = hashlib.sha256(f.read()).hexdigest()
     assert os.path.isfile(os.path.join(dest, "gains-%s.json" % sha[:16]))
     p = brick.make("logs", "LOGS_DIR=%s" % dest)

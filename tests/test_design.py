@@ -13,14 +13,9 @@ from hostsim.errors import DesignError, ParameterError
 from hostsim.model.gains import DEFAULT_OUT_DIR, design_gains, dumps, main as gains_main, to_document
 from hostsim.model.paper_check import TOLERANCE, cross_spectral_radii, run as paper_check_run
 from hostsim.model.params import load_params
-from hostsim.paths import REPO_ROOT
+from conftest import PARAMS_FILE, REPO
 
 VARIANTS = ("paper", "physical")
-
-
-@pytest.fixture(scope="module")
-def params():
-    return load_params()
 
 
 @pytest.fixture(scope="module")
@@ -186,7 +181,7 @@ def test_gains_file_carries_its_provenance(designs):
 
 
 def write_params(tmp_path, mutate):
-    doc = json.load(open(os.path.join(REPO_ROOT, "params", "robot.json")))
+    doc = json.load(open(PARAMS_FILE))
     mutate(doc["parameters"])
     path = tmp_path / "robot.json"
     path.write_text(json.dumps(doc))
@@ -208,7 +203,7 @@ def test_bad_parameter_files_are_named(tmp_path, mutate, message):
         load_params(path)
     # The command line ends with one line naming the cause, exit status 2.
     proc = subprocess.run([sys.executable, "-m", "hostsim", "gains", "--params", path, "--out-dir", str(tmp_path)],
-                          capture_output=True, text=True, cwd=REPO_ROOT)
+                          capture_output=True, text=True, cwd=REPO)
     assert proc.returncode == 2
     assert proc.stderr.strip().count("\n") == 0 and message in proc.stderr
 

@@ -15,8 +15,8 @@ import pytest
 from hostsim.world.fake_ev3 import FakeEV3
 from tipbot_fw import config as fw_config
 from tipbot_fw.ev3io import (Ev3Devices, Ev3ReadError, Ev3SetupError, Ev3WriteError)
+from conftest import REPO
 
-REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 PORTS = ('outA', 'outB', 'outC', 'outD')
 EV3IO_PATH = os.path.join(REPO, 'tipbot_fw', 'ev3io.py')
 

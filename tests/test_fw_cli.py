@@ -1,5 +1,4 @@
 """python3 -m tipbot_fw: refusals before touching devices, exit codes, a run on the fake EV3."""
-import os
 import subprocess
 import sys
 
@@ -10,9 +9,8 @@ import fw_support as S
 from hostsim.world.fake_ev3 import FakeEV3
 from tipbot_fw import cli
 from tipbot_fw.logfile import col, read_log
+from conftest import PHYSICAL_GAINS, REPO
 
-REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-PHYSICAL = os.path.join(REPO, 'gains', 'physical.json')
 
 
 @pytest.fixture
@@ -34,7 +32,7 @@ def test_invalid_gains_are_refused_before_any_device(tmp_path, capsys, no_device
 
 def test_invalid_config_is_refused_before_any_device(tmp_path, capsys, no_devices):
     cfg = S.write_json(tmp_path / 'cfg.json', {'limits': {'th1_rad': -1}})
-    assert cli.main(['run', '--gains', PHYSICAL, '--config', cfg]) == 2
+    assert cli.main(['run', '--gains', PHYSICAL_GAINS, '--config', cfg]) == 2
     err = capsys.readouterr().err
     assert 'refused to start: {}: field limits.th1_rad must be a number in (0, 1.5], got -1'.format(cfg) in err
     assert len(err.strip().splitlines()) == 1
@@ -42,7 +40,7 @@ def test_invalid_config_is_refused_before_any_device(tmp_path, capsys, no_device
 
 def test_bad_command_line(capsys, no_devices):
     with pytest.raises(SystemExit) as e:
-        cli.main(['run', '--gains', PHYSICAL, '--duration', '-3'])
+        cli.main(['run', '--gains', PHYSICAL_GAINS, '--duration', '-3'])
     assert e.value.code == 2
 
 
@@ -71,7 +69,7 @@ def quick_config(tmp_path):
 
 def test_run_on_the_fake_ev3(fake, tmp_path, quick_config, capsys):
     log = str(tmp_path / 'run.log')
-    code = cli.main(['run', '--gains', PHYSICAL, '--config', quick_config, '--duration', '0.1',
+    code = cli.main(['run', '--gains', PHYSICAL_GAINS, '--config', quick_config, '--duration', '0.1',
                      '--log', log, '--sysfs-root', fake.sysfs_root])
     err = capsys.readouterr().err
     assert code == 0, err

@@ -22,8 +22,8 @@ from hostsim.world.motor_sim import one_motor_fake, simulate_identify
 from tipbot_fw import cli, logfile
 from tipbot_fw import identify as fw
 from tipbot_fw.gains import load_gains
+from conftest import PARAMS_FILE, REPO
 
-REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 # (Table 2 motor, driver, role, battery volts at rest, seed)
 LARGE = (1, "lego-ev3-l-motor", "right_wheel", 8.2, 1)
@@ -90,7 +90,7 @@ def test_command_line_prints_table_2_plots_and_writes_params(logs, tmp_path, cap
     assert summary["joint3"]["fits"][0]["phi"] == pytest.approx(TABLE2[5].phi, rel=0.05)
 
     doc = json.load(open(out_params))
-    base = json.load(open(os.path.join(REPO, "params", "robot.json")))
+    base = json.load(open(PARAMS_FILE))
     for key, entry in doc["parameters"].items():
         if key.startswith(("right_wheel_", "joint3_")):
             assert entry["source"].startswith("identified from motor"), entry

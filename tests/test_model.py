@@ -6,14 +6,8 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from hostsim.model.equations import RobotModel, get_variant
-from hostsim.model.params import load_params
 
 VARIANTS = ("paper", "physical")
-
-
-@pytest.fixture(scope="module")
-def params():
-    return load_params()
 
 
 @pytest.fixture(scope="module")

@@ -5,7 +5,6 @@ firmware-in-the-loop runs are held to what must be true whatever the firmware's 
 (saturated inputs, estimate starting at the first measurement, a clean stop), and where they
 start near the equilibrium (Section 8, Appendix D) they must balance.
 """
-import os
 from dataclasses import replace
 
 import numpy as np
@@ -14,11 +13,11 @@ import pytest
 from hostsim.sim import metrics
 from hostsim.sim.fil import run_firmware
 from hostsim.sim.linear_sim import simulate_linear, simulate_nonlinear
-from hostsim.paths import REPO_ROOT
 from hostsim.model.pd import pd_for_gains
 from hostsim.studies.runner import run_scenario, scenario_metrics
 from hostsim.sim.scenario import load_scenario
 from tipbot_fw.gains import load_gains
+from conftest import gains_path
 
 U_MAX = 7.6
 ACT = [0, 1, 3, 4]
@@ -106,7 +105,7 @@ def test_appendix_d_short_optimal_beats_pd():
 
 def test_pd_baseline_is_stable_and_close_to_the_lq_cost():
     for variant in ("paper", "physical"):
-        pd = pd_for_gains(os.path.join(REPO_ROOT, "gains", variant + ".json"))
+        pd = pd_for_gains(gains_path(variant))
         assert pd["spectral_radius"] < 1.0
         assert 1.0 < pd["cost"] / pd["lqr_cost"] < 1.5
 

@@ -78,11 +78,11 @@ from scipy.optimize import least_squares
 from scipy.signal import lfilter
 
 from hostsim.errors import TipbotError
+from hostsim.logs import read_log
 from hostsim.model.motors import DRIVER_MOTOR, ROLE_MOTOR, TABLE2, TABLE2_G
 from hostsim.model.params import DEFAULT_PARAMS_PATH, MOTOR_FIELDS, MOTOR_ROLES, load_params, parse_params
 from hostsim.paths import out_dir
 from tipbot_fw import identify as fw_identify
-from tipbot_fw import logfile
 
 DEFAULT_OUT = out_dir("identify")
 DEG = math.pi / 180.0
@@ -158,16 +158,10 @@ class IdLog:
 
 def load_log(path):
     """-> IdLog; IdentifyError (NotAnIdentifyLog) naming the problem."""
-    if not os.path.isfile(path):
-        raise IdentifyError("%s: no such log file" % path)
-    try:
-        header, rows = logfile.read_log(path)
-    except logfile.LogFormatError as e:
-        raise IdentifyError(str(e))
+    header, rows, names = read_log(path, IdentifyError)
     if header.get("kind") != fw_identify.KIND:
         raise NotAnIdentifyLog("%s: not an identify log (header kind %r; a balance run log has none): record one with "
                                "`python3 -m tipbot_fw identify --port PORT` on the brick" % (path, header.get("kind")))
-    names = [c.get("name") if isinstance(c, dict) else c for c in header.get("columns", [])]
     missing = [n for n in fw_identify.COLUMN_NAMES if n not in names]
     if missing:
         raise NotAnIdentifyLog("%s: identify log without the column(s) %s" % (path, ", ".join(missing)))

@@ -37,6 +37,7 @@ from tipbot_fw.config import ConfigError, config_from_overrides
 from tipbot_fw.gains import GainsError, load_gains
 
 from hostsim.errors import TipbotError
+from hostsim.logs import read_log
 from hostsim.paths import GAINS_DIR, out_dir
 
 DEFAULT_OUT = out_dir("replay")
@@ -55,19 +56,11 @@ def load_log(path):
 
     header["config"] is the configuration in force, completed with this version's defaults
     for fields an older firmware did not have (notes say which)."""
-    if not os.path.isfile(path):
-        raise ReplayError("%s: no such log file" % path)
-    try:
-        header, rows = logfile.read_log(path)
-    except logfile.LogFormatError as e:
-        raise ReplayError(str(e))
-    except OSError as e:
-        raise ReplayError("%s: cannot read: %s" % (path, e))
+    header, rows, names = read_log(path, ReplayError)
     if header.get("kind", "run") != "run":
         raise ReplayError("%s: a log of kind %r, not a balance run: analyse it with `python -m hostsim %s`"
                           % (path, header["kind"], header["kind"]))
     written_by = header.get("versions", {}).get("tipbot_fw", "an unknown version")
-    names = [c.get("name") if isinstance(c, dict) else c for c in header.get("columns", [])]
     if names != list(logfile.COLUMN_NAMES):
         extra = sorted(set(names) - set(logfile.COLUMN_NAMES))
         missing = sorted(set(logfile.COLUMN_NAMES) - set(names))
