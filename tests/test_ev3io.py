@@ -1,4 +1,4 @@
-"""tipbot_fw.ev3io.Ev3Devices against hostsim.fake_ev3: start-up checks and set-up, the per-tick
+"""tipbot_fw.ev3io.Ev3Devices against hostsim.world.fake_ev3: start-up checks and set-up, the per-tick
 I/O budget (5 reads, <= 4 writes), what the fake sees, failures, and a cross-process run."""
 import ast
 import copy

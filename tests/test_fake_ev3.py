@@ -1,4 +1,4 @@
-"""hostsim.fake_ev3: layout and formats, python-ev3dev2 accepts the tree unchanged, client
+"""hostsim.world.fake_ev3: layout and formats, python-ev3dev2 accepts the tree unchanged, client
 writes of any length are seen, failure injection, and the sensor models feeding it."""
 import errno
 import os

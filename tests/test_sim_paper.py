@@ -122,7 +122,7 @@ def test_firmware_runs_of_the_paper_scenarios_keep_the_invariants(name, duration
     # The estimate starts at the first measurement, not at the scenario's x~(0).
     assert np.allclose(run.xhat[0], run.y[0])
     assert np.abs(run.xhat[0, 2:5] - np.array(sc.x0_si[2:5])).max() < 0.02
-    # The wheel origin (hostsim.fil): shifted by d_origin_m, the firmware's measured d is the
+    # The wheel origin (hostsim.sim.fil): shifted by d_origin_m, the firmware's measured d is the
     # plant's, to an encoder count and the th1 estimate's error times R_w.
     early = run.t_s <= 0.3
     assert np.abs(run.y[early, :2] - run.x[early, :2]).max() < 0.002

@@ -311,7 +311,7 @@ class SysfsDevices(object):
 
 
 class Ev3Devices(SysfsDevices):
-    """Devices on an ev3dev sysfs tree (the real /sys/class, or hostsim.fake_ev3's).
+    """Devices on an ev3dev sysfs tree (the real /sys/class, or hostsim.world.fake_ev3's).
 
     ``io`` provides open/pread/pwrite/close with the signatures of :mod:`os` (the default);
     tests pass a counting one. Raises Ev3SetupError naming every missing or wrong device;

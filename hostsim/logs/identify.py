@@ -573,7 +573,7 @@ def measured_speed(log, window_s=0.02):
 def write_params(base_path, out_path, derived, sources):
     """A copy of the parameters file at base_path with the roles' motor fields replaced.
     derived: {role: parameter dict}; sources: {role: text}. The top-level object
-    ``identified`` keeps, per role, what the fit measured (hostsim.params ignores it).
+    ``identified`` keeps, per role, what the fit measured (hostsim.model.params ignores it).
     Validated before it is written; out_path may be base_path."""
     with open(base_path) as f:
         doc = json.load(f)

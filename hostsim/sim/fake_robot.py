@@ -3,15 +3,15 @@
     python -m hostsim fake-robot --root DIR [--scenario FILE|NAME] [--duration S]
                                  [--write-config FILE] [--trace FILE.npz]
 
-creates a hostsim.fake_ev3 tree in DIR and keeps it in step with the nonlinear plant
-(hostsim.plant, the scenario's plant variant and parameter scales) and the sensor models
-(hostsim.sensors) in real time, so that the unmodified firmware can run against it as a
+creates a hostsim.world.fake_ev3 tree in DIR and keeps it in step with the nonlinear plant
+(hostsim.world.plant, the scenario's plant variant and parameter scales) and the sensor models
+(hostsim.world.sensors) in real time, so that the unmodified firmware can run against it as a
 SEPARATE process, exactly as on the brick:
 
     python3 -m tipbot_fw run --gains gains/physical.json --config CFG --sysfs-root DIR
 
 (or the deployed launcher over ssh: tests/test_deploy.py). The files on disk are the only
-link between the two processes. This is the real-time counterpart of hostsim.fil, which runs
+link between the two processes. This is the real-time counterpart of hostsim.sim.fil, which runs
 the firmware in lock-step with a virtual clock in one process.
 
 Every ~1 ms (--step-ms) the loop reads what the firmware wrote (FakeEV3.poll), integrates
@@ -26,12 +26,12 @@ must have ended by then). The scenario's pushes and disturbances are timed from 
 release. If |th1| passes 90 degrees the robot lies on the floor: the plant is frozen there.
 
 The firmware must be told the start pose, gyro mounting and wheel radius: --write-config
-FILE writes the matching firmware configuration (hostsim.fil.firmware_config; realtime
+FILE writes the matching firmware configuration (hostsim.sim.fil.firmware_config; realtime
 priority 0), for `--config` or for `make deploy CONFIG=FILE`.
 
 Prints "fake_robot: ready ..." once the tree exists, a summary when it stops (after
 --duration seconds, or on SIGTERM / SIGINT). Not for accuracy studies: the host's scheduling
-makes runs unrepeatable; use hostsim.fil for that.
+makes runs unrepeatable; use hostsim.sim.fil for that.
 """
 import argparse
 import json

@@ -2,7 +2,7 @@
 
 The firmware's session (calibration, loop, safety, log) runs as on the brick, with a
 ``VirtualClock``: whenever it sleeps, the simulated world catches up to the wake-up time.
-The world is the nonlinear plant (hostsim.plant), the sensor models (hostsim.sensors) and,
+The world is the nonlinear plant (hostsim.world.plant), the sensor models (hostsim.world.sensors) and,
 with ``sysfs=True``, the fake EV3 tree read and written by the firmware's real device layer
 (tipbot_fw.ev3io); with ``sysfs=False`` an in-memory device (faster, for Monte Carlo).
 
@@ -12,7 +12,7 @@ brick), the motor voltage is duty x battery voltage, held until the next write (
 hold), plus the scenario's input disturbance. ``extra_delay_ticks`` delays the voltages by
 whole ticks more; ``jitter_s`` makes each wake-up late by |N(0, jitter_s)| (rounded to the
 plant's 1 ms step). The plant integrates with the scenario's ``plant_method`` at 1 kHz, one
-``advance`` per piece of constant input (hostsim.plant).
+``advance`` per piece of constant input (hostsim.world.plant).
 
 Start: like a person holding the robot, the world keeps the plant at the scenario's start
 pose while the firmware calibrates the gyro (about 1 s, with the scenario's gyro bias and

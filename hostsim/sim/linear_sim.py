@@ -1,7 +1,7 @@
 """The paper's simulation: the detector and the controller on the linear or nonlinear model.
 
 Linear: plant x_{k+1} = A x_k + B (u_k + w_k) (input disturbances, E = B), full-state
-measurement y = x. Nonlinear: the same loop around hostsim.plant, the input (plus w) held
+measurement y = x. Nonlinear: the same loop around hostsim.world.plant, the input (plus w) held
 over each tick, y = x sampled at the ticks. The detector and the control law are those of
 docs/architecture.md, with the same saturation as the firmware. Written independently of
 tipbot_fw so that comparing the two tests the firmware's implementation.

@@ -46,7 +46,7 @@ DEFAULTS = {
     "gains": "gains/physical.json",
     "controllers": ["optimal"],       # "optimal" (LQR + detector + K_w) and/or "pd" (baseline)
     "plant_variant": "physical",
-    "plant_method": "heun",           # integrator of the nonlinear plant at 1 kHz (hostsim.plant)
+    "plant_method": "heun",           # integrator of the nonlinear plant at 1 kHz (hostsim.world.plant)
     "param_scale": {},                # parameter name -> multiplier
     "x0_si": None,                    # initial state, SI; default zeros
     "x0_paper_units": None,           # or: initial state with d, d' in cm, cm/s (as printed)

@@ -12,14 +12,14 @@ draws, from its own generator seeded by (seed, run index):
 - gyro bias U(-2, 2) deg/s and white noise of standard deviation U(0, 0.5) deg/s: within
   the firmware's calibration stillness check (rate spread <= 4 deg/s over 1 s), which a
   larger noise would trip; a run the firmware refuses to start is counted apart;
-- encoder quantization (always: 1 count = 1 degree, hostsim.sensors), one extra tick of
+- encoder quantization (always: 1 count = 1 degree, hostsim.world.sensors), one extra tick of
   input delay with probability 1/2, and loop wake-up jitter |N(0, s)|, s ~ U(0, 1) ms;
 - the release angle th1(0) ~ U(-0.04, 0.04) rad.
 
 The same draws are used for every gains file (common random numbers: the gains are
 compared on identical robots). A run succeeds when the firmware completes the duration
 (no fall or joint-limit stop), |th1| stays below 30 degrees and ends below 0.1 rad.
-Results do not depend on --jobs (see hostsim.parallel).
+Results do not depend on --jobs (see hostsim.sim.parallel).
 """
 import argparse
 import dataclasses

@@ -4,7 +4,7 @@ Runs scenarios/section7, section8, appendix_d (the paper's) and section8_physica
 robot's gains on the physical model) in all their modes, a short region-of-attraction and
 Monte Carlo study, writes everything under out/sim/ (per scenario: metrics.json, figures,
 runs.npz; robustness/; report.md) and prints the summary tables. Builds a missing gains file
-first (hostsim.gains). Exit status 1 if a scenario's expectations fail.
+first (python -m hostsim gains). Exit status 1 if a scenario's expectations fail.
 """
 import argparse
 import os

@@ -4,7 +4,7 @@ The motor (output-shaft quantities, SI, as in Table 2 of the paper)::
 
     J w' = Km i - beta w - Tc sgn(w),    i = (u - Ke w) / Ra      (inductance neglected)
 
-driven from what a client wrote into the fake sysfs tree (hostsim.fake_ev3.FakeEV3.poll):
+driven from what a client wrote into the fake sysfs tree (hostsim.world.fake_ev3.FakeEV3.poll):
 
 * ``run-direct`` at duty d (percent): u = d/100 x the battery's terminal voltage;
 * ``stop`` with stop_action ``coast``: open circuit, i = 0 (no back-EMF braking);

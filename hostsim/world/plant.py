@@ -7,7 +7,7 @@ can be added for pushes and other external disturbances.
 Integration: classic RK4 (``method="rk4"``, the default and the reference) or Heun's
 second-order method (``"heun"``, half the derivative evaluations; its error against RK4 at
 1 ms is bounded by tests/test_sim_plant.py; ``python -m hostsim bench-sim`` times both). Without an
-external force the derivative comes from hostsim.fastdyn, which gives bit-for-bit the
+external force the derivative comes from hostsim.model.fastdyn, which gives bit-for-bit the
 numbers of the model's mass_matrix_forcing + solve_spd5 below at about half the cost.
 """
 import math
