@@ -8,7 +8,10 @@ import sys
 import numpy as np
 import pytest
 
-from hostsim.model import design
+import dataclasses
+
+from hostsim.model import design, kalman
+from hostsim.model.equations import state_scale_to_si
 from hostsim.errors import DesignError, ParameterError
 from hostsim.model.gains import DEFAULT_OUT_DIR, design_gains, dumps, main as gains_main, to_document
 from hostsim.model.paper_check import TOLERANCE, cross_spectral_radii, run as paper_check_run
@@ -112,14 +115,42 @@ def test_k_w_reduces_the_cost_of_a_constant_disturbance(designs):
     assert cost(g.K_w) < 0.9 * cost(np.zeros((5, 5)))
 
 
-def test_other_sampling_period(params):
+def test_other_sampling_period_goes_to_its_own_file_and_holds_both_models(params, tmp_path):
     g = design_gains("physical", params, ts_s=0.010)
     doc = to_document(g)
     assert doc["ts_s"] == 0.01
     assert np.max(np.abs(g.closed_loop_eigenvalues)) < 1
-    # At 10 ms no wheel weight makes the physical gain hold the paper's model; the file says so.
-    assert doc["robust_to_models"]["stabilized"] is False
-    assert doc["robust_to_models"]["worst_spectral_radius"] > 1
+    # At 10 ms the state feedback of any wheel weight up to x50 loses the paper's model; with the
+    # Kalman filter in the loop, x70 holds both models with 0-4 ms of delay and +-20 % gain.
+    assert doc["robust_to_models"]["stabilized"] is True and doc["r_wheel_scale"] == 70
+    assert doc["robust_to_models"]["worst_spectral_radius"] < 0.999
+    assert doc["state_feedback_spectral_radius"]["paper"] > 1
+    assert gains_main(["--variant", "physical", "--ts", "0.010", "--out-dir", str(tmp_path)]) == 0
+    assert sorted(os.listdir(str(tmp_path))) == ["physical-10ms.json"]
+
+
+@pytest.mark.parametrize("variant", VARIANTS)
+def test_the_kalman_loop_holds_every_plant_of_the_uncertainty_set(designs, variant, params):
+    g = designs[variant]
+    kd = g.kalman
+    assert kd.n == 13 and kd.observability_rank == 13
+    assert np.max(np.abs(kd.filter_eigenvalues)) < 1
+    worst, where = kalman.UncertaintySet(params, g.ts_s).worst(kd)
+    assert worst <= kalman.ROBUST_RADIUS_MAX and g.robust_to_models
+    assert worst == pytest.approx(g.robust_worst_radius)
+    # the loop's own slowest mode is the filter's: nothing of the plant's is slower
+    assert worst == pytest.approx(np.max(np.abs(kd.filter_eigenvalues)), abs=1e-4)
+
+
+def test_a_fast_disturbance_estimate_would_lose_the_paper_model_with_input_delay(params):
+    # why disturbance_rate_v2_per_s is 0.1 and not 1 (hostsim.model.kalman.NoiseSettings)
+    g = design_gains("physical", params)
+    fast = dataclasses.replace(g.kalman.noise, disturbance_rate_v2_per_s=1.0)
+    t = state_scale_to_si(g.variant)
+    ti = np.linalg.inv(t)
+    kd = kalman.design_kalman(t @ g.A @ ti, t @ g.B, g.K @ ti, g.K_w, params["rw_m"], g.ts_s, fast)
+    worst, where = kalman.UncertaintySet(params, g.ts_s).worst(kd)
+    assert worst > 1.0 and where[0] == "paper" and where[1] > 0
 
 
 def test_singular_r_is_refused(designs):

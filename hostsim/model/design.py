@@ -193,32 +193,6 @@ def robust_detector(a, b, c, e_mat, actuated, poles=None):
     return l1, l2, g_w, eig
 
 
-# Multipliers tried, in order, on the wheel inputs' weight (see robust_wheel_weight).
+# Multipliers tried, in order, on the wheel inputs' weight of the physical variant
+# (hostsim.model.gains.robust_design).
 WHEEL_WEIGHT_LADDER = (1.0, 1.5, 2.0, 3.0, 4.0, 5.0, 6.0, 8.0, 10.0, 12.0, 15.0, 20.0, 25.0, 30.0, 40.0, 50.0, 70.0, 100.0)
-ROBUST_RADIUS_MAX = 0.999
-
-
-def robust_wheel_weight(a, b, q, r, actuated, check_models, to_si, wheel_inputs=(0, 1)):
-    """LQR whose gain also stabilizes other models: raise the wheel inputs' weight until it does.
-
-    ``check_models`` are (A, B) pairs with the state in SI; ``to_si`` maps this design's
-    state to SI. The smallest multiplier of ``WHEEL_WEIGHT_LADDER`` for which every
-    closed loop (own model included) has spectral radius <= ROBUST_RADIUS_MAX wins. When
-    none does (slow sampling can make it impossible), the plain design (multiplier 1) is
-    returned with ``robust`` False and the worst radius, for the caller to report.
-    Returns (multiplier, R used, K, P, closed-loop eigenvalues, robust, worst radius).
-    """
-    to_si_inv = np.linalg.inv(to_si)
-    plain = None
-    for factor in WHEEL_WEIGHT_LADDER:
-        r_try = np.array(r, dtype=float)
-        for j in wheel_inputs:
-            r_try[j, j] *= factor
-        k, p, e = dlqr(a, b, q, r_try, actuated)
-        k_si = k @ to_si_inv
-        radii = [np.max(np.abs(e))] + [np.max(np.abs(np.linalg.eigvals(am - bm @ k_si))) for am, bm in check_models]
-        if plain is None:
-            plain = (factor, r_try, k, p, e, False, max(radii))
-        if max(radii) <= ROBUST_RADIUS_MAX:
-            return factor, r_try, k, p, e, True, max(radii)
-    return plain

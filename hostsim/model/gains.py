@@ -1,9 +1,10 @@
-"""Gain generation: model -> linearization -> discretization -> LQR + detector -> JSON.
+"""Gain generation: model -> linearization -> discretization -> LQR, Kalman filter, detector -> JSON.
 
 ``python -m hostsim gains [--variant paper|physical|all] [--ts 0.005] [--params FILE]
 [--out-dir gains] [--check]`` writes ``gains/<variant>.json`` (schema in
-docs/architecture.md). Output is deterministic: no wall-clock time, floats rounded to 12
-significant digits, so regenerating gives the same bytes. ``--check`` compares instead of
+docs/architecture.md); another period than 5 ms goes to its own file,
+``gains/<variant>-<period>ms.json``. Output is deterministic: no wall-clock time, floats rounded
+to 12 significant digits, so regenerating gives the same bytes. ``--check`` compares instead of
 writing and exits 1 on a difference.
 """
 import argparse
@@ -18,19 +19,19 @@ import numpy as np
 
 from hostsim.errors import TipbotError
 from hostsim.model import design
+from hostsim.model import kalman
 from hostsim.model.equations import INPUT_NAMES, STATE_NAMES, RobotModel, Variant, get_variant, state_scale_to_si
 from hostsim.model.params import DEFAULT_PARAMS_PATH, load_params, params_hash
 from hostsim.paths import GAINS_DIR
 from tipbot_fw.gains import ACTUATED_INPUTS
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 DEFAULT_TS_S = 0.005
 DEFAULT_OUT_DIR = GAINS_DIR
 VARIANT_NAMES = ("paper", "physical")
-# The physical gains must also stabilize the paper's model: the two bracket what is least
-# certain about the drivetrain (rotor inertia Jm from 0 to Table 2's value, the wheel
+# Both designs must hold both model variants (kalman.UncertaintySet): the two bracket what is
+# least certain about the drivetrain (rotor inertia Jm from 0 to Table 2's value, the wheel
 # motors' reaction on link 1 absent or present).
-ROBUST_AGAINST = ("paper",)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -47,8 +48,9 @@ class GainDesign:
     Q: np.ndarray
     R: np.ndarray
     r_wheel_scale: float             # the wheel inputs' weight multiplier (physical variant)
-    robust_to_models: Optional[bool]  # whether K also stabilizes ROBUST_AGAINST (None: not checked)
-    robust_worst_radius: Optional[float]
+    robust_to_models: bool           # whether the loop holds every plant of kalman.UncertaintySet
+    robust_worst_radius: float
+    robust_worst_case: tuple         # (model, delay_s, input gain) of the worst radius
     K: np.ndarray
     P: np.ndarray                    # the Riccati solution
     K_w: np.ndarray
@@ -58,10 +60,13 @@ class GainDesign:
     closed_loop_eigenvalues: np.ndarray
     detector_eigenvalues: np.ndarray
     structure: dict                  # design.structure_report
+    kalman: kalman.KalmanDesign      # the firmware's default estimator (SI)
+    state_feedback_radii: dict       # spectral radius of A - B K on each model (the detector's concern)
 
 
-def design_gains(variant, params, ts_s=DEFAULT_TS_S, detector_poles=None):
-    """Design everything the firmware needs for one model variant -> GainDesign."""
+def design_gains(variant, params, ts_s=DEFAULT_TS_S, detector_poles=None, noise=None):
+    """Design everything the firmware needs for one model variant -> GainDesign (noise: the
+    Kalman filter's hostsim.model.kalman.NoiseSettings, default its defaults)."""
     if isinstance(variant, str):
         variant = get_variant(variant)
     model = RobotModel(variant, params)
@@ -73,20 +78,56 @@ def design_gains(variant, params, ts_s=DEFAULT_TS_S, detector_poles=None):
     cm_per_unit = variant.d_scale_m * 100.0
     q, r = design.weights_in_units(design.PAPER_Q_DIAG_CM, design.PAPER_R_DIAG,
                                    [cm_per_unit] * 2 + [1] * 3 + [cm_per_unit] * 2 + [1] * 3)
-    r_wheel_scale, robust, worst = 1.0, None, None
-    if variant.paper_conventions:
-        k, p, cl_eig = design.dlqr(a, b, q, r, ACTUATED_INPUTS)
-    else:
-        check_models = [design.discrete_model_si(RobotModel(name, params), ts_s) for name in ROBUST_AGAINST]
-        r_wheel_scale, r, k, p, cl_eig, robust, worst = design.robust_wheel_weight(
-            a, b, q, r, ACTUATED_INPUTS, check_models, state_scale_to_si(variant))
-    k_w = design.disturbance_gain(a, b, q, r, k, p, e_mat)
+    chosen = robust_design(variant, params, ts_s, a, b, q, r, e_mat, noise)
     l1, l2, g_w, det_eig = design.robust_detector(a, b, c, e_mat, ACTUATED_INPUTS, detector_poles)
-    return GainDesign(variant=variant, model=model, ts_s=float(ts_s), A=a, B=b, C=c, E=e_mat, Q=q, R=r,
-                r_wheel_scale=r_wheel_scale, robust_to_models=robust, robust_worst_radius=worst,
-                K=k, P=p, K_w=k_w, L1=l1, L2=l2, G_w=g_w,
-                closed_loop_eigenvalues=cl_eig, detector_eigenvalues=det_eig,
-                structure=design.structure_report(a, b, c, ACTUATED_INPUTS))
+    return GainDesign(variant=variant, model=model, ts_s=float(ts_s), A=a, B=b, C=c, E=e_mat, Q=q, R=chosen["R"],
+                      r_wheel_scale=chosen["r_wheel_scale"], robust_to_models=chosen["robust"],
+                      robust_worst_radius=chosen["worst"], robust_worst_case=chosen["where"],
+                      K=chosen["K"], P=chosen["P"], K_w=chosen["K_w"], L1=l1, L2=l2, G_w=g_w,
+                      closed_loop_eigenvalues=chosen["eig"], detector_eigenvalues=det_eig,
+                      structure=design.structure_report(a, b, c, ACTUATED_INPUTS), kalman=chosen["kalman"],
+                      state_feedback_radii=state_feedback_radii(variant, params, ts_s, chosen["K"]))
+
+
+def robust_design(variant, params, ts_s, a, b, q, r, e_mat, noise=None):
+    """The LQR and the Kalman filter, made robust together: the first wheel input weight of
+    design.WHEEL_WEIGHT_LADDER (physical variant; the paper's weights for the paper variant)
+    and input-noise scale of kalman.INPUT_NOISE_LADDER whose loop (plant, filter, law) has a
+    spectral radius <= kalman.ROBUST_RADIUS_MAX on every plant of kalman.UncertaintySet. When
+    none does, the plain design (both factors 1) with robust False. -> dict."""
+    uncertainty = kalman.UncertaintySet(params, ts_s)
+    t = state_scale_to_si(variant)
+    ti = np.linalg.inv(t)
+    base = kalman.NoiseSettings() if noise is None else noise
+    ladder = (1.0,) if variant.paper_conventions else design.WHEEL_WEIGHT_LADDER
+    plain = None
+    for factor in ladder:
+        r_try = np.array(r, dtype=float)
+        for j in (0, 1):
+            r_try[j, j] *= factor
+        k, p, eig = design.dlqr(a, b, q, r_try, ACTUATED_INPUTS)
+        k_w = design.disturbance_gain(a, b, q, r_try, k, p, e_mat)
+        for scale in kalman.INPUT_NOISE_LADDER:
+            ns = dataclasses.replace(base, input_noise_scale=scale)
+            kd = kalman.design_kalman(t @ a @ ti, t @ b, k @ ti, k_w, params["rw_m"], ts_s, ns)
+            worst, where = uncertainty.worst(kd)
+            found = dict(r_wheel_scale=factor, R=r_try, K=k, P=p, eig=eig, K_w=k_w, kalman=kd, worst=worst,
+                         where=where, robust=worst <= kalman.ROBUST_RADIUS_MAX)
+            if plain is None:
+                plain = found
+            if found["robust"]:
+                return found
+    return plain
+
+
+def state_feedback_radii(variant, params, ts_s, k):
+    """Spectral radius of A - B K (perfect state feedback) on each model variant."""
+    k_si = k @ np.linalg.inv(state_scale_to_si(variant))
+    out = {}
+    for name in VARIANT_NAMES:
+        am, bm = design.discrete_model_si(RobotModel(name, params), ts_s)
+        out[name] = kalman.spectral_radius(am - bm @ k_si)
+    return out
 
 
 def _num(x):
@@ -122,9 +163,15 @@ def to_document(g):
         "actuated_inputs": list(ACTUATED_INPUTS),
         "u_max_v": _num(params["u_max_v"]),
         "r_wheel_scale": _num(g.r_wheel_scale),
-        "robust_to_models": None if g.robust_to_models is None else {
-            "models": list(ROBUST_AGAINST), "stabilized": g.robust_to_models,
-            "worst_spectral_radius": _num(g.robust_worst_radius)},
+        "robust_to_models": dict(kalman.UncertaintySet.describe(None), stabilized=g.robust_to_models,
+                                 worst_spectral_radius=_num(g.robust_worst_radius),
+                                 worst_case=[g.robust_worst_case[0], _num(g.robust_worst_case[1]),
+                                             _num(g.robust_worst_case[2])],
+                                 input_noise_scale=_num(g.kalman.noise.input_noise_scale),
+                                 what="spectral radius of plant + Kalman filter + law on each model variant, with "
+                                      "the new duties landing each delay into the tick and the motors' gain "
+                                      "scaled; stabilized: every one <= radius_max"),
+        "state_feedback_spectral_radius": {k: _num(v) for k, v in sorted(g.state_feedback_radii.items())},
         "closed_loop_spectral_radius": _num(np.max(np.abs(g.closed_loop_eigenvalues))),
         "detector_eigenvalues": [_num(z.real) for z in sorted(g.detector_eigenvalues, key=lambda z: z.real)],
         "controllability_rank": st["controllability_rank"],
@@ -136,20 +183,50 @@ def to_document(g):
     }
     for key in ("A", "B", "C", "E", "K", "K_w", "L1", "L2", "G_w", "Q", "R"):
         doc[key] = _matrix(getattr(g, key))
+    doc["kalman"] = _rounded(g.kalman.document())
     return doc
 
 
-def dumps(doc):
-    """JSON text with one matrix row per line (readable diffs), keys in a fixed order."""
+def _rounded(value):
+    """Plain JSON types with floats rounded (_num), matrices as lists of rows."""
+    if isinstance(value, dict):
+        return {k: _rounded(v) for k, v in value.items()}
+    if isinstance(value, np.ndarray):
+        return _matrix(value) if value.ndim == 2 else [_num(v) for v in value]
+    if isinstance(value, (list, tuple)):
+        return [_rounded(v) for v in value]
+    if isinstance(value, (float, np.floating)):
+        return _num(value)
+    if isinstance(value, np.integer):
+        return int(value)
+    return value
+
+
+def _is_matrix(value):
+    return isinstance(value, list) and value and isinstance(value[0], list)
+
+
+def _has_matrix(value):
+    return isinstance(value, dict) and any(_is_matrix(v) or _has_matrix(v) for v in value.values())
+
+
+def dumps(doc, indent="  "):
+    """JSON text with one matrix row per line (readable diffs), keys in a fixed order: scalars
+    and lists first, then objects holding matrices, then matrices."""
+    def order(k):
+        v = doc[k]
+        return (2 if _is_matrix(v) else 1 if _has_matrix(v) else 0, k)
     lines = []
-    for key in sorted(doc, key=lambda k: (isinstance(doc[k], list) and doc[k] and isinstance(doc[k][0], list), k)):
+    for key in sorted(doc, key=order):
         value = doc[key]
-        if isinstance(value, list) and value and isinstance(value[0], list):
-            rows = ",\n".join("    " + json.dumps(row) for row in value)
-            lines.append('  %s: [\n%s\n  ]' % (json.dumps(key), rows))
+        if _is_matrix(value):
+            rows = ",\n".join(indent + "  " + json.dumps(row) for row in value)
+            lines.append('%s%s: [\n%s\n%s]' % (indent, json.dumps(key), rows, indent))
+        elif _has_matrix(value):
+            lines.append("%s%s: %s" % (indent, json.dumps(key), dumps(value, indent + "  ").rstrip("\n")))
         else:
-            lines.append("  %s: %s" % (json.dumps(key), json.dumps(value, sort_keys=True)))
-    return "{\n" + ",\n".join(lines) + "\n}\n"
+            lines.append("%s%s: %s" % (indent, json.dumps(key), json.dumps(value, sort_keys=True)))
+    return "{\n" + ",\n".join(lines) + "\n" + indent[:-2] + "}\n"
 
 
 def summary(g):
@@ -161,17 +238,31 @@ def summary(g):
         "  open-loop |eig|: %s" % ol,
         "  closed-loop spectral radius of A - B K: %.6f" % np.max(np.abs(g.closed_loop_eigenvalues)),
         "  detector eigenvalues (Abar - L1 C): %s" % ", ".join("%.4g" % z.real for z in g.detector_eigenvalues),
+        "  Kalman filter: %d states (observability rank %d), slowest error mode |eig| %.5f"
+        % (g.kalman.n, g.kalman.observability_rank, np.max(np.abs(g.kalman.filter_eigenvalues))),
+        "  state feedback A - B K on each model, spectral radius: %s"
+        % ", ".join("%.5f on %s" % (r, m) for m, r in sorted(g.state_feedback_radii.items())),
     ] + robustness_lines(g))
 
 
 def robustness_lines(g):
-    if g.robust_to_models is None:
-        return []
+    u = kalman.UncertaintySet.describe(None)
+    where = "%s model, duties landing %g ms into the tick, motor gain x%g" % (
+        g.robust_worst_case[0], g.robust_worst_case[1] * 1e3, g.robust_worst_case[2])
+    span = "both models, %s ms of delay, motor gain x%s" % (
+        "/".join("%g" % (d * 1e3) for d in u["delays_s"]), "/".join("%g" % v for v in u["input_gains"]))
     if g.robust_to_models:
-        return ["  wheel input weight x%g: the gain also stabilizes the %s model(s) (worst radius %.5f)"
-                % (g.r_wheel_scale, "/".join(ROBUST_AGAINST), g.robust_worst_radius)]
-    return ["  WARNING: no wheel input weight makes this gain stabilize the %s model(s) at ts %.4g s "
-            "(worst radius %.4f); using the paper's weights" % ("/".join(ROBUST_AGAINST), g.ts_s, g.robust_worst_radius)]
+        return ["  wheel input weight x%g, filter input noise x%g: the loop holds %s (worst radius %.5f: %s)"
+                % (g.r_wheel_scale, g.kalman.noise.input_noise_scale, span, g.robust_worst_radius, where)]
+    return ["  WARNING: no wheel weight and filter input noise make the loop hold %s at ts %.4g s (worst radius "
+            "%.4f: %s); using the plain design" % (span, g.ts_s, g.robust_worst_radius, where)]
+
+
+def gains_file_name(variant, ts_s):
+    """<variant>.json at the default period, <variant>-<period>ms.json at another."""
+    if abs(ts_s - DEFAULT_TS_S) < 1e-12:
+        return variant + ".json"
+    return "%s-%gms.json" % (variant, ts_s * 1000.0)
 
 
 def main(argv=None):
@@ -191,7 +282,7 @@ def main(argv=None):
             g = design_gains(name, params, args.ts)
             print(summary(g))
             text = dumps(to_document(g))
-            path = os.path.join(args.out_dir, name + ".json")
+            path = os.path.join(args.out_dir, gains_file_name(name, args.ts))
             if args.check:
                 old = open(path).read() if os.path.exists(path) else None
                 if old != text:

@@ -1,0 +1,369 @@
+"""The firmware's default estimator: a steady-state Kalman filter on the gains' discrete model.
+
+It measures what the sensors measure and carries, beside the robot's state, the input
+disturbances and the gyro bias, so that the compensation ``u = -K x^ - K_w w^`` and the bias
+come out of one filter (docs/architecture.md, "Kalman filter").
+
+Augmented model, SI, one step of the period ts (x_a has 15 entries):
+
+    x_a = [x (10), w (4: volts on u_r, u_l, u_th2, u_th3), b (gyro bias, rad/s)]
+    x_a+ = A_a x_a + B_a u + noise       A_a = [[A, B_act, 0], [0, I, 0], [0, 0, 1]], B_a = [B_act; 0; 0]
+    m    = C_a x_a + noise               m = [phi_r, phi_l, th2, th3, gyro]
+
+phi_r, phi_l are the wheel encoders' angles, which are RELATIVE to link 1 (the motors sit on
+it): phi = d / R_w - th1; th2, th3 the joint encoders; gyro = th1' + b. So the filter sees no
+state directly but the joint angles: the tilt and its bias are told apart by the dynamics (a
+lean that the model cannot explain without the base accelerating, which the wheel encoders
+would see; see ``bias_lean_separation``).
+
+Filter, in the "current" (filtered) form: the estimate of tick k uses the reading of tick k,
+and the model is fed the input actually APPLIED (after rounding and saturation):
+
+    x^_k  = x-_k + L (m_k - C_a x-_k)          x-_k = A_a x^_{k-1} + B_a u_{k-1}
+    u_k   = -K_a x^_k,   K_a = [K_act, K_w_act, 0]
+
+L is the steady-state gain of the discrete Riccati equation (scipy) with the noise settings of
+``NoiseSettings``; each one is derived from a published hardware fact or a stated physical
+rate of change, recorded with its reason in the gains file.
+"""
+import dataclasses
+import math
+
+import numpy as np
+import scipy.linalg
+
+from hostsim.errors import DesignError
+from tipbot_fw import kalman as fw_kalman
+from tipbot_fw.gains import ACTUATED_INPUTS
+
+N_X = 10
+N_U = len(ACTUATED_INPUTS)
+# The input disturbances the filter estimates: the wheels' (module docstring of NoiseSettings).
+DISTURBANCE_INPUTS = (0, 1)          # indices into the actuated inputs (u_r, u_l, u_th2, u_th3)
+X_NAMES = ("d_r", "d_l", "th1", "th2", "th3", "d_r_dot", "d_l_dot", "th1_dot", "th2_dot", "th3_dot")
+X_UNITS = ("m", "m", "rad", "rad", "rad", "m/s", "m/s", "rad/s", "rad/s", "rad/s")
+W_NAMES = ("w_r", "w_l", "w_th2", "w_th3")
+MEASUREMENT_NAMES = ("phi_r", "phi_l", "th2", "th3", "gyro")
+MEASUREMENT_UNITS = ("rad", "rad", "rad", "rad", "rad/s")
+N_M = len(MEASUREMENT_NAMES)
+ACTUATED_NAMES = ("u_r", "u_l", "u_th2", "u_th3")
+# Multipliers tried, in order, on the filter's input noise (NoiseSettings.input_noise_scale):
+# fictitious input noise is the classic way to give a Kalman filter's loop back the robustness of
+# the state feedback it serves (loop transfer recovery), at the cost of noisier estimates.
+INPUT_NOISE_LADDER = (1.0, 2.0, 3.0, 4.0)
+DEG = math.pi / 180.0
+ENCODER_COUNTS_PER_ROT = 360
+
+
+def state_names(dist_inputs=DISTURBANCE_INPUTS):
+    return X_NAMES + tuple(W_NAMES[i] for i in dist_inputs) + ("gyro_bias",)
+
+
+def state_units(dist_inputs=DISTURBANCE_INPUTS):
+    return X_UNITS + ("V",) * len(dist_inputs) + ("rad/s",)
+
+
+@dataclasses.dataclass(frozen=True)
+class NoiseSettings:
+    """The filter's noise model. Every value is a physical figure (../shared/ev3-hardware.md);
+    the methods turn them into the per-tick matrices.
+
+    Measurement (white, per reading):
+    - encoders: one count of quantization, 2 pi / 360 rad, uniform error: count^2 / 12.
+      Backlash (about 3 deg at a Large motor's output) is no white noise but free play in the
+      drive; widening the encoders' variance for it made every run worse (the estimate then
+      leans on the noisier gyro), so it is left to the robustness checks.
+    - gyro: integer deg/s readings (1/12 (deg/s)^2 of quantization) plus the sensor's own
+      noise and lag, ``gyro_noise_dps``: 0.5 deg/s, the top of the noise our Monte Carlo draws;
+      a 10 ms lag on the ~1 rad/s^2 of balancing is of the same size.
+    Process:
+    - input noise, volts on each actuated input, white per tick: what the model does not know
+      about the motors from one tick to the next, chiefly Coulomb friction, which flips with
+      the direction of turn: 4 % duty on a Large motor, 10 % on the Medium one, at 8 V
+      0.32 V (wheels, joint 2) and 0.8 V (joint 3). The design multiplies these by
+      ``input_noise_scale``, the first step of INPUT_NOISE_LADDER whose loop holds every plant
+      of UncertaintySet (hostsim.model.gains.robust_design): fictitious input noise is the
+      classic way to give an estimator-based loop the robustness of the state feedback it
+      serves (loop transfer recovery); a model-trusting filter loses it.
+    - input disturbances, random walk, on the wheels only (``DISTURBANCE_INPUTS``): how fast a
+      disturbance that persists changes: a slope, a friction level that settles, the battery
+      sagging under a sustained load, a hand: by about 1 V over 10 s, i.e. 0.1 V^2/s (faster
+      changes are the input noise's). Faster rates (1 V^2/s) made the loop lose the other
+      model variant with 4 ms of input delay. No disturbance state on the joints: a
+      random-walk estimate there is an integrator, and against Coulomb friction an integrator
+      hunts (stick, wind up, break away, overshoot): with one on the Medium motor link 3 swung
+      +-0.13 rad at 0.6 Hz in simulation, without it link 3 held within a count. A constant
+      load on a joint then leaves a small joint offset (load / K), which the balance does not
+      mind; the wheels' estimates keep the paper's disturbance rejection (Sections 7, 8 and
+      Appendix D disturb the wheels).
+    - gyro bias b, random walk: the EV3 gyro drifts with temperature and time; our design case,
+      a drift of 0.01 deg/s per second, is a change of (0.01 deg/s)^2 per second.
+    """
+    encoder_count_rad: float = 2.0 * math.pi / ENCODER_COUNTS_PER_ROT
+    gyro_resolution_dps: float = 1.0
+    gyro_noise_dps: float = 0.5
+    input_noise_v: tuple = (0.32, 0.32, 0.32, 0.8)
+    disturbance_inputs: tuple = DISTURBANCE_INPUTS
+    disturbance_rate_v2_per_s: float = 0.1
+    bias_drift_dps_per_s: float = 0.01
+    input_noise_scale: float = 1.0      # set by the design's robustness ladder (INPUT_NOISE_LADDER)
+
+    @property
+    def n_states(self):
+        return N_X + len(self.disturbance_inputs) + 1
+
+    def measurement_covariance(self):
+        r_enc = self.encoder_count_rad ** 2 / 12.0
+        r_gyro = (self.gyro_resolution_dps ** 2 / 12.0 + self.gyro_noise_dps ** 2) * DEG ** 2
+        return np.diag([r_enc] * 4 + [r_gyro])
+
+    def process_covariance(self, b_act, ts_s):
+        """Per-tick covariance of the augmented state's noise (n x n)."""
+        n, nw = self.n_states, len(self.disturbance_inputs)
+        q = np.zeros((n, n))
+        q[:N_X, :N_X] = b_act @ np.diag(np.square(np.asarray(self.input_noise_v) * self.input_noise_scale)) @ b_act.T
+        q[N_X:N_X + nw, N_X:N_X + nw] = np.eye(nw) * self.disturbance_rate_v2_per_s * ts_s
+        q[n - 1, n - 1] = (self.bias_drift_dps_per_s * DEG) ** 2 * ts_s
+        return q
+
+    def provenance(self):
+        """The settings with units and reasons, for the gains file."""
+        r = self.measurement_covariance()
+        return {
+            "encoder_count_rad": {"value": self.encoder_count_rad, "unit": "rad", "variance_rad2": r[0, 0],
+                                  "why": "one count of 360 per turn, uniform quantization error: count^2/12"},
+            "gyro_resolution_dps": {"value": self.gyro_resolution_dps, "unit": "deg/s",
+                                    "why": "GYRO-G&A reports integer deg/s: 1/12 (deg/s)^2"},
+            "gyro_noise_dps": {"value": self.gyro_noise_dps, "unit": "deg/s", "variance_rad2_s2": r[4, 4],
+                               "why": "sensor noise and lag: the top of the Monte Carlo's 0-0.5 deg/s; a 10 ms "
+                                      "lag on ~1 rad/s^2 of balancing is as large"},
+            "input_noise_v": {"value": list(self.input_noise_v), "unit": "V on u_r, u_l, u_th2, u_th3, white per tick",
+                              "why": "Coulomb friction, which flips with the direction of turn: 4 % (Large) and "
+                                     "10 % (Medium, joint 3) duty at 8 V"},
+            "input_noise_scale": {"value": self.input_noise_scale,
+                                  "why": "the first multiplier of the input noise whose loop holds both model "
+                                         "variants with 0-4 ms of input delay and +-20 % motor gain (loop "
+                                         "transfer recovery; robust_to_models)"},
+            "disturbance_inputs": {"value": [ACTUATED_NAMES[i] for i in self.disturbance_inputs],
+                                   "why": "a random-walk estimate is an integrator; on the joints it hunts "
+                                          "against Coulomb friction (link 3 +-0.13 rad in simulation)"},
+            "disturbance_rate_v2_per_s": {"value": self.disturbance_rate_v2_per_s, "unit": "V^2/s",
+                                          "why": "a persistent disturbance (slope, friction level, battery sag, "
+                                                 "a hand) changes by about 1 V over 10 s"},
+            "bias_drift_dps_per_s": {"value": self.bias_drift_dps_per_s, "unit": "deg/s per s",
+                                     "why": "gyro drift with temperature and time, as a random walk of "
+                                            "0.01 deg/s per second"},
+        }
+
+
+
+
+def augmented_model(a_si, b_si, rw_m, dist_inputs=DISTURBANCE_INPUTS):
+    """(A_a, B_a, C_a) of the module docstring from the discrete model (SI)."""
+    return fw_kalman.augmented_model(a_si, b_si[:, ACTUATED_INPUTS], rw_m, dist_inputs)
+
+
+def observability_rank(aa, ca):
+    n = aa.shape[0]
+    o = np.vstack([ca @ np.linalg.matrix_power(aa, i) for i in range(n)])
+    return int(np.linalg.matrix_rank(o))
+
+
+def kalman_gain(aa, ca, qn, rn):
+    """Steady-state gain of the filtered form and the prior / posterior covariances."""
+    try:
+        p = scipy.linalg.solve_discrete_are(aa.T, ca.T, qn, rn)
+    except (ValueError, np.linalg.LinAlgError) as exc:
+        raise DesignError("the filter's Riccati equation has no stabilizing solution: %s" % exc)
+    s = ca @ p @ ca.T + rn
+    gain = np.linalg.solve(s, ca @ p).T
+    post = (np.eye(aa.shape[0]) - gain @ ca) @ p
+    return gain, p, (post + post.T) / 2
+
+
+def law_gain(k_si, k_w, dist_inputs=DISTURBANCE_INPUTS):
+    """K_a = [K_act, K_w_act (disturbed inputs' columns), 0]: u_act = -K_a x^ (4 x n)."""
+    act = ACTUATED_INPUTS
+    kw_cols = [act[i] for i in dist_inputs]
+    return np.hstack([k_si[act, :], k_w[np.ix_(act, kw_cols)], np.zeros((N_U, 1))])
+
+
+@dataclasses.dataclass(frozen=True)
+class KalmanDesign:
+    ts_s: float
+    rw_m: float            # the wheel radius of C_a
+    noise: NoiseSettings
+    A: np.ndarray          # A_a (n x n)
+    B: np.ndarray          # B_a (n x 4)
+    C: np.ndarray          # C_a (5 x n)
+    Q: np.ndarray          # process noise per tick (n x n)
+    R: np.ndarray          # measurement noise (5 x 5)
+    L: np.ndarray          # filter gain, filtered form (n x 5)
+    P: np.ndarray          # steady-state prior covariance
+    P_post: np.ndarray     # and posterior (the estimate's)
+    K: np.ndarray          # K_a (4 x n)
+    observability_rank: int
+
+    @property
+    def n(self):
+        return self.A.shape[0]
+
+    @property
+    def state_names(self):
+        return state_names(self.noise.disturbance_inputs)
+
+    @property
+    def state_units(self):
+        return state_units(self.noise.disturbance_inputs)
+
+    @property
+    def filter_eigenvalues(self):
+        """Of the estimation error x - x^ (its dynamics (I - L C) A)."""
+        return np.linalg.eigvals((np.eye(self.n) - self.L @ self.C) @ self.A)
+
+    def folded_law(self):
+        """The tick as one matrix (tipbot_fw.kalman): rows [u_k (4), xi_k (n)], columns
+        [u_{k-1} (4, applied volts), xi_{k-1} (n), dphi_r, dphi_l, m_k (5, SI)]."""
+        return fw_kalman.fold(self.A, self.B, self.C, self.L, self.K, self.rw_m)
+
+    def state_bounds(self):
+        return [STATE_BOUNDS[name.split("_")[0] if name.startswith("w_") else name] for name in self.state_names]
+
+    def document(self):
+        """The gains file's `kalman` block (SI; docs/architecture.md)."""
+        return {
+            "state_names": list(self.state_names), "state_units": list(self.state_units),
+            "measurement_names": list(MEASUREMENT_NAMES), "measurement_units": list(MEASUREMENT_UNITS),
+            "wheel_radius_m": self.rw_m,
+            "A": self.A, "B": self.B, "C": self.C, "L": self.L, "K": self.K, "Q": self.Q, "R": self.R,
+            "law": {"M": self.folded_law(), "state_bounds": self.state_bounds(),
+                    "rows": list(ACTUATED_NAMES) + ["xi_" + n for n in self.state_names],
+                    "columns": list(ACTUATED_NAMES) + ["xi_" + n for n in self.state_names]
+                    + ["dphi_r", "dphi_l"] + list(MEASUREMENT_NAMES),
+                    "state_bounds_why": STATE_BOUNDS_WHY},
+            "noise": self.noise.provenance(),
+            "posterior_std": list(np.sqrt(np.diag(self.P_post))),
+            "filter_eigenvalues_abs": sorted(float(abs(z)) for z in self.filter_eigenvalues),
+            "observability_rank": self.observability_rank,
+        }
+
+
+# Ranges of the carried state for the fixed-point law (tipbot_fw.fixedpoint): far beyond what
+# a standing robot reaches, so that no sum can overflow; their resolution is bound / 2^32.
+STATE_BOUNDS = {"d_r": 1.0, "d_l": 1.0, "th1": 4.0, "th2": 4.0, "th3": 4.0, "d_r_dot": 20.0, "d_l_dot": 20.0,
+                "th1_dot": 200.0, "th2_dot": 200.0, "th3_dot": 200.0, "w": 100.0, "gyro_bias": 1.0}
+STATE_BOUNDS_WHY = ("fixed-point ranges (resolution bound/2^32): xi_d = d - R_w phi is R_w th1 plus the "
+                    "estimate's error (< 1 m); angles < 4 rad (the run stops at 0.6 / 1.2 rad); wheel speeds "
+                    "< 20 m/s and rates < 200 rad/s (the motors reach 0.6 m/s and 30 rad/s, the gyro 7.7 rad/s); "
+                    "disturbances < 100 V (the battery is 9 V); gyro bias < 1 rad/s (57 deg/s)")
+
+
+def design_kalman(a_si, b_si, k_si, k_w, rw_m, ts_s, noise=None):
+    """The filter and the law for one model (SI) -> KalmanDesign."""
+    noise = NoiseSettings() if noise is None else noise
+    aa, ba, ca = augmented_model(a_si, b_si, rw_m, noise.disturbance_inputs)
+    rank = observability_rank(aa, ca)
+    if rank < aa.shape[0]:
+        raise DesignError("the augmented model is not observable from the sensors (rank %d < %d)"
+                          % (rank, aa.shape[0]))
+    qn = noise.process_covariance(ba[:N_X], ts_s)
+    rn = noise.measurement_covariance()
+    gain, p, post = kalman_gain(aa, ca, qn, rn)
+    return KalmanDesign(ts_s=float(ts_s), rw_m=float(rw_m), noise=noise, A=aa, B=ba, C=ca, Q=qn, R=rn,
+                        L=gain, P=p, P_post=post, K=law_gain(k_si, k_w, noise.disturbance_inputs),
+                        observability_rank=rank)
+
+
+reference_step = fw_kalman.reference_step
+
+
+def closed_loop_matrix(kd, a_plant, b_plant):
+    """The linear loop of a plant (SI, 10 states), the filter and the law, unsaturated, state
+    [x (10), x^ (n)]: its spectral radius says whether the design holds that plant."""
+    bp = b_plant[:, ACTUATED_INPUTS]
+    ca_x = kd.C[:, :N_X]                  # the sensors see the plant's x (no bias in the plant)
+    ikc = np.eye(kd.n) - kd.L @ kd.C
+    # x_k = A x_{k-1} + B u_{k-1};  x^_k = ikc (A_a x^_{k-1} + B_a u_{k-1}) + L C_x x_k;
+    # u_{k-1} = -K_a x^_{k-1}
+    top = np.hstack([a_plant, -bp @ kd.K])
+    bottom = np.hstack([kd.L @ ca_x @ a_plant, ikc @ (kd.A - kd.B @ kd.K) - kd.L @ ca_x @ bp @ kd.K])
+    return np.vstack([top, bottom])
+
+
+def spectral_radius(m):
+    return float(np.max(np.abs(np.linalg.eigvals(m))))
+
+
+def delayed_plant(ac_si, bc_si, ts_s, delay_s):
+    """The plant sampled at ts_s when each new input lands delay_s into the tick (the old one
+    holds until then): x_{k+1} = A x_k + B1 u_k + B0 u_{k-1} (SI, all 5 inputs)."""
+    n, m = bc_si.shape
+    big = np.zeros((n + m, n + m))
+    big[:n, :n] = ac_si
+    big[:n, n:] = bc_si
+
+    def phi(t):
+        e = scipy.linalg.expm(big * t)
+        return e[:n, :n], e[:n, n:]
+    a, b_full = phi(ts_s)
+    a_rest, b_rest = phi(ts_s - delay_s)     # from the landing to the tick's end
+    b1 = b_rest
+    b0 = b_full - b_rest
+    return a, b1, b0
+
+
+def loop_radius(kd, a, b1, b0):
+    """Spectral radius of plant, filter and law, the plant given as delayed_plant()'s
+    (A, B1, B0) (SI, 5 inputs): the new inputs land into the tick; state [x, u_{k-1}, x^]."""
+    act = ACTUATED_INPUTS
+    b1, b0 = b1[:, act], b0[:, act]
+    n = kd.n
+    ca_x = kd.C[:, :N_X]
+    ikc = np.eye(n) - kd.L @ kd.C
+    # u_k = -K x^_k;  x_{k+1} = A x_k + B1 u_k + B0 u_{k-1};
+    # x^_{k+1} = ikc (A_a x^_k + B_a u_k) + L C_x x_{k+1}
+    big = np.zeros((N_X + N_U + n, N_X + N_U + n))
+    xs, us, hs = slice(0, N_X), slice(N_X, N_X + N_U), slice(N_X + N_U, N_X + N_U + n)
+    big[xs, xs] = a
+    big[xs, us] = b0
+    big[xs, hs] = -b1 @ kd.K
+    big[us, hs] = -kd.K
+    big[hs, xs] = kd.L @ ca_x @ a
+    big[hs, us] = kd.L @ ca_x @ b0
+    big[hs, hs] = ikc @ (kd.A - kd.B @ kd.K) - kd.L @ ca_x @ b1 @ kd.K
+    return spectral_radius(big)
+
+
+# The uncertainty a design must hold (hostsim.model.gains): both model variants (they bracket
+# what is least certain about the drivetrain), the new duties landing 0-4 ms into the tick
+# (five sysfs reads, the compute, then up to four writes: ../shared/ev3-hardware.md), and the
+# motors' gain 20 % off (battery sag under load, motor constants).
+ROBUST_MODELS = ("paper", "physical")
+ROBUST_DELAYS_S = (0.0, 0.002, 0.004)
+ROBUST_INPUT_GAINS = (0.8, 1.0, 1.2)
+ROBUST_RADIUS_MAX = 0.999
+
+
+class UncertaintySet:
+    """The plants of ROBUST_MODELS x ROBUST_DELAYS_S x ROBUST_INPUT_GAINS at one period, built
+    once; worst(kd) -> (largest loop spectral radius, (model, delay_s, gain) where)."""
+
+    def __init__(self, params, ts_s):
+        from hostsim.model.equations import RobotModel, state_scale_to_si
+        self.plants = []
+        for name in ROBUST_MODELS:
+            model = RobotModel(name, params)
+            ac, bc = model.linearize()
+            t = state_scale_to_si(model.variant)
+            ac, bc = t @ ac @ np.linalg.inv(t), t @ bc
+            for d in ROBUST_DELAYS_S:
+                for g in ROBUST_INPUT_GAINS:
+                    self.plants.append(((name, d, g), delayed_plant(ac, bc * g, ts_s, d)))
+
+    def worst(self, kd):
+        return max((loop_radius(kd, *plant), where) for where, plant in self.plants)
+
+    @staticmethod
+    def describe(_=None):
+        return {"models": list(ROBUST_MODELS), "delays_s": list(ROBUST_DELAYS_S),
+                "input_gains": list(ROBUST_INPUT_GAINS), "radius_max": ROBUST_RADIUS_MAX}
