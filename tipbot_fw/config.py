@@ -5,26 +5,30 @@ Every field is validated; errors name the file and the dotted field path. Fields
   ports.{right_wheel,left_wheel,joint2,joint3}  motor port, outA..outD, all different
   ports.gyro                                   sensor port, in1..in4
   drivers.<device>                             expected driver name (checked by the device layer)
+  estimator                                    kalman (the default: tipbot_fw.kalman) or detector (the
+                                               paper's Section 6 robust detector: tipbot_fw.detector_core)
   stop_action                                  what a stopped motor does: coast or brake
   polarity.<motor>                             +1/-1: multiplies the measured counts AND the duty
   gyro_sign                                    +1/-1: +1 if a positive gyro rate is a forward tilt
-  wheel_radius_m                               wheel radius R_w
+  wheel_radius_m                               wheel radius R_w of the detector's signal chain (the
+                                               Kalman filter uses its gains file's, the model's)
   start_pose_rad.{th1,th2,th3}                 pose the robot is held in at start (th1 integrates
                                                from it; th2, th3 are the joint encoders' zeros)
   limits.th1_rad, limits.th2_rad, limits.th3_rad   |angle| beyond -> motors stopped in that tick
   limits.min_battery_v                         refuse to start below this battery voltage
   limits.max_consecutive_overruns              this many late ticks in a row -> safe stop
-  filters.encoder_rate_cutoff_hz               low-pass of the differentiated encoder positions
-  filters.gyro_rate_cutoff_hz                  low-pass of the gyro rate (th1_dot)
-  filters.disturbance_cutoff_hz                low-pass of the disturbance estimate w^ before the
-                                               control law uses it (tipbot_fw.detector); null = none
+  filters.encoder_rate_cutoff_hz               detector only: low-pass of the differentiated encoder positions
+  filters.gyro_rate_cutoff_hz                  detector only: low-pass of the gyro rate (th1_dot)
+  filters.disturbance_cutoff_hz                detector only: low-pass of the disturbance estimate w^
+                                               before the law uses it (tipbot_fw.detector); null = none
   gyro_calibration.duration_s                  stillness window for the bias at start
   gyro_calibration.max_rate_spread_dps         max - min rate allowed in that window
   gyro_calibration.max_angle_change_deg        sensor angle change allowed in that window
-  gyro_bias_time_constant_s                    slow bias tracking while running; null = off (the
-                                               default: see tipbot_fw.signals for why)
-  gyro_bias_quiet_dps                          the tracking learns only from samples whose
-                                               corrected rate is within +- this (the robot at rest)
+  gyro_bias_time_constant_s                    detector only: slow bias tracking while running; null =
+                                               off (the default: see tipbot_fw.signals for why); the
+                                               Kalman filter estimates the bias itself
+  gyro_bias_quiet_dps                          detector only: the tracking learns only from samples
+                                               whose corrected rate is within +- this (at rest)
   battery_period_s                             battery re-read period (outside the ticks)
   log_max_rows                                 log buffer rows (a ring: the newest are kept)
   realtime_priority                            SCHED_FIFO priority to request, 0 = don't
@@ -61,6 +65,7 @@ SPEC = {
     'drivers.joint2': fields.nonempty_string,
     'drivers.joint3': fields.nonempty_string,
     'drivers.gyro': fields.nonempty_string,
+    'estimator': _one_of('kalman', 'detector'),
     'stop_action': _one_of('coast', 'brake'),
     'polarity.right_wheel': _SIGN,
     'polarity.left_wheel': _SIGN,

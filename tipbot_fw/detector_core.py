@@ -1,8 +1,9 @@
-"""The tick core: raw readings + battery voltage -> duties and a log row. No I/O, no time.
+"""The paper's core (config estimator: detector): signal chain, Section 6 detector, LQR.
 
-The loop on the brick and a replay on the host call the very same methods with the same
-numbers, so a replay of a log reproduces the estimates and inputs. Pipeline per tick:
-signal chain -> detector + control law (one matrix product) -> saturation -> duty -> log row.
+Selectable for reproducing the paper; the firmware's default is tipbot_fw.kalman. Raw readings
++ battery voltage -> duties and a log row, no I/O, no time (tipbot_fw.core describes the
+interface both cores share). Pipeline per tick: signal chain -> detector + control law (one
+matrix product) -> saturation -> duty -> log row.
 
 On the brick each Python float handled one by one costs about as much as a multiply-add inside
 the product, so the core moves data by struct packing and byte copies between preallocated
@@ -56,10 +57,27 @@ def _picker(indices):
     return lambda y: tuple(y[i] for i in indices)
 
 
-class Core(object):
+class DetectorRows(object):
+    """The detector core's log row: logfile's MEM_NAMES in memory, logfile.COLUMNS in the file."""
+    mem_names = logfile.MEM_NAMES
+    row_bytes = logfile.MEM_ROW_BYTES
+    flags_index = logfile.MEM_FLAGS
+    columns = logfile.COLUMNS
+    column_names = logfile.COLUMN_NAMES
+
+    def __init__(self, polarity):
+        self.polarity = polarity
+
+    def to_file(self, mem_rows, t0=0.0):
+        return logfile.to_file_layout(mem_rows, self.polarity, t0)
+
+    col = staticmethod(logfile.col)
+
+
+class DetectorCore(object):
     """Per-tick computation; its whole state is recorded in each log row.
 
-    set_battery(battery_v) before the first tick and whenever the voltage changes (outside the
+    set_gyro_bias(bias_dps) after the calibration, set_battery(battery_v) before the first tick and whenever the voltage changes (outside the
     ticks: it rescales the matrix); start(enc, gyro, buf, offset) for the first tick,
     step(enc, gyro, buf, offset) for every later one. Both write the tick's memory row
     (logfile.MEM_NAMES), except its time columns, into the bytearray buf at byte offset
@@ -67,8 +85,12 @@ class Core(object):
     (FALL / JOINT_LIMIT bits) if the motors must be stopped now instead.
     """
 
-    def __init__(self, gains, config, gyro_bias_dps, counts_per_rot=(360, 360, 360, 360)):
-        self.chain = SignalChain(config, gains.ts_s, gyro_bias_dps, counts_per_rot)
+    estimator = 'detector'
+
+    def __init__(self, gains, config, counts_per_rot=(360, 360, 360, 360)):
+        self.chain = None
+        self.chain_args = (config, gains.ts_s)
+        self.counts_per_rot = tuple(counts_per_rot)
         cutoff = config['filters']['disturbance_cutoff_hz']
         self.w_lowpass = 1.0 if cutoff is None else lowpass_coefficient(cutoff, gains.ts_s)
         M, self.y1_used = fold(gains, self.w_lowpass)
@@ -94,6 +116,22 @@ class Core(object):
                        -lim['th3_rad'], lim['th3_rad'])
         self.battery_v = None
         self.x0 = None      # x~_0, for the log header
+        self.rows = DetectorRows(self.polarity)
+
+    def set_gyro_bias(self, gyro_bias_dps):
+        """The calibrated bias (deg/s): the signal chain starts from it."""
+        self.chain = SignalChain(self.chain_args[0], self.chain_args[1], gyro_bias_dps, self.counts_per_rot)
+
+    def header(self):
+        """What the log header needs to replay this core (docs/log-format.md)."""
+        return {'estimator': self.estimator,
+                'encoder_offsets': list(self.chain.offsets) if self.chain and self.chain.offsets else None,
+                'x_tilde_0': self.x0}
+
+    def angles(self, mem_row):
+        """(th1, th2, th3) of a memory row, for the stop message."""
+        y = mem_row[logfile.MEM_Y:logfile.MEM_Y + 5]
+        return float(y[2]), float(y[3]), float(y[4])
 
     def set_battery(self, battery_v):
         """Fold this battery voltage (and the polarities) into the matrix; see module docstring."""

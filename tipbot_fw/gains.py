@@ -1,8 +1,12 @@
-"""Load, validate and convert to SI a gains file (docs/architecture.md, schema_version 1).
+"""Load, validate and convert to SI a gains file (docs/architecture.md, schema_version 2).
 
 Everything is checked once at start-up, with messages naming the file and the field, and the
 matrices are converted to SI here so nothing downstream ever sees cm. The file's ts_s is the
 only definition of the control period.
+
+A file carries two estimators: the paper's robust detector (Section 6; A, B, C, L1, L2, G_w,
+K, K_w in the file's state units), selectable for reproducing the paper, and the Kalman filter
+(the `kalman` block, always SI; the firmware's default), validated by _kalman_block below.
 """
 import hashlib
 
@@ -10,7 +14,7 @@ import numpy as np
 
 from tipbot_fw import fields
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 N_STATES = 10
 N_INPUTS = 5
 ACTUATED_INPUTS = [0, 1, 3, 4]
@@ -30,7 +34,7 @@ _MATRICES = (('A', N_STATES, N_STATES), ('B', N_STATES, N_INPUTS), ('C', N_STATE
 REQUIRED_KEYS = ('schema_version', 'model_variant', 'ts_s', 'state_names', 'state_units',
                  'input_names', 'input_units', 'actuated_inputs', 'A', 'B', 'C', 'E', 'K', 'K_w',
                  'L1', 'L2', 'G_w', 'detector_eigenvalues', 'closed_loop_spectral_radius', 'Q',
-                 'R', 'u_max_v', 'parameters', 'parameters_sha256', 'model_options', 'generator')
+                 'R', 'u_max_v', 'parameters', 'parameters_sha256', 'model_options', 'generator', 'kalman')
 
 # Relative tolerance for "this entry is zero" and for the file's own spectral radius claim:
 # the file stores 12 significant digits.
@@ -48,7 +52,7 @@ class Gains(object):
     Attributes: path, sha256, schema_version, model_variant, ts_s, u_max_v, state_names,
     input_names, state_units_file, state_scale (x_file = state_scale * x_SI), actuated_inputs,
     A, B, C, E, K, K_w, L1, L2, G_w, Q, R (SI), closed_loop_spectral_radius,
-    detector_spectral_radius, parameters_sha256, generator.
+    detector_spectral_radius, parameters_sha256, generator, kalman (KalmanGains).
     """
 
 
@@ -155,6 +159,7 @@ def gains_from_dict(doc, source='<gains>', sha256=None, expected_ts_s=None):
     g.detector_spectral_radius = rho_det
     g.parameters_sha256 = doc['parameters_sha256']
     g.generator = doc['generator']
+    g.kalman = _kalman_block(doc['kalman'], f, g)
     return g
 
 
@@ -165,3 +170,82 @@ def load_gains(path, expected_ts_s=None):
     """
     doc, data = fields.read_json(path, GainsError)
     return gains_from_dict(doc, path, hashlib.sha256(data).hexdigest(), expected_ts_s)
+
+
+# ---------------------------------------------------------------------------------------------
+# The Kalman block (schema 2): the firmware's default estimator (tipbot_fw.kalman), SI units.
+KALMAN_KEYS = ('state_names', 'state_units', 'measurement_names', 'measurement_units', 'wheel_radius_m',
+               'A', 'B', 'C', 'L', 'K', 'law', 'noise')
+_X_NAMES = ('d_r', 'd_l', 'th1', 'th2', 'th3', 'd_r_dot', 'd_l_dot', 'th1_dot', 'th2_dot', 'th3_dot')
+_X_UNITS = ('m', 'm', 'rad', 'rad', 'rad', 'm/s', 'm/s', 'rad/s', 'rad/s', 'rad/s')
+_W_NAMES = ('w_r', 'w_l', 'w_th2', 'w_th3')
+_MEASUREMENTS = (('phi_r', 'rad'), ('phi_l', 'rad'), ('th2', 'rad'), ('th3', 'rad'), ('gyro', 'rad/s'))
+# The folded law must equal the fold of the block's matrices to this fraction of its row's
+# largest entry (the file has 12 significant digits; the fold sums a few dozen products).
+_LAW_RTOL = 1e-8
+
+
+class KalmanGains(object):
+    """The validated `kalman` block: n, state_names, state_units, wheel_radius_m, A (n x n),
+    B (n x 4), C (5 x n), L (n x 5), K (4 x n), law_M ((4 + n) x (4 + n + 7)), state_bounds,
+    filter_spectral_radius."""
+
+
+def _kalman_block(doc, f, g):
+    from tipbot_fw.kalman import fold, measurement_matrix    # here: tipbot_fw.kalman imports this module
+    f.check('kalman', doc, fields.obj)
+    f.require(doc, KALMAN_KEYS, 'kalman.')
+    k = KalmanGains()
+    names = doc['state_names']
+    n = len(names) if isinstance(names, list) else 0
+    k.state_names = list(f.check('kalman.state_names', names, fields.strings(n)))
+    w = names[10:-1]
+    if not (11 <= n <= 15 and tuple(names[:10]) == _X_NAMES and names[-1] == 'gyro_bias'
+            and all(v in _W_NAMES for v in w) and len(set(w)) == len(w)):
+        f.fail('kalman.state_names', 'must be the 10 states, some of {} and gyro_bias, got {!r}'.format(
+            ', '.join(_W_NAMES), names))
+    units = list(_X_UNITS) + ['V'] * len(w) + ['rad/s']
+    if doc['state_units'] != units:
+        f.fail('kalman.state_units', 'must be {!r} (SI), got {!r}'.format(units, doc['state_units']))
+    k.state_units = units
+    k.disturbance_inputs = [_W_NAMES.index(v) for v in w]
+    k.n = n
+    if doc['measurement_names'] != [m for m, _ in _MEASUREMENTS] or \
+            doc['measurement_units'] != [u for _, u in _MEASUREMENTS]:
+        f.fail('kalman.measurement_names', 'must be {} (units {})'.format(
+            [m for m, _ in _MEASUREMENTS], [u for _, u in _MEASUREMENTS]))
+    k.wheel_radius_m = f.number('kalman.wheel_radius_m', doc['wheel_radius_m'], lo=0, hi=0.2)
+    shapes = (('A', n, n), ('B', n, 4), ('C', 5, n), ('L', n, 5), ('K', 4, n))
+    for key, rows, cols in shapes:
+        setattr(k, key, np.array(f.check('kalman.' + key, doc[key], fields.matrix(rows, cols)), dtype=float))
+    f.check('kalman.noise', doc['noise'], fields.obj)
+    law = f.check('kalman.law', doc['law'], fields.obj)
+    f.require(law, ('M', 'state_bounds'), 'kalman.law.')
+    k.law_M = np.array(f.check('kalman.law.M', law['M'], fields.matrix(4 + n, 4 + n + 7)), dtype=float)
+    k.state_bounds = f.check('kalman.law.state_bounds', law['state_bounds'], fields.numbers(n))
+    if min(k.state_bounds) <= 0:
+        f.fail('kalman.law.state_bounds', 'must be positive, got {!r}'.format(k.state_bounds))
+    # the measurement model the firmware folds in (wheel encoders relative to link 1)
+    c = measurement_matrix(n, k.wheel_radius_m)
+    if np.max(np.abs(k.C - c)) > _ZERO_RTOL * max(1.0, 1.0 / k.wheel_radius_m):
+        f.fail('kalman.C', 'must measure [d/R_w - th1 (2), th2, th3, th1_dot + gyro_bias] with R_w = '
+               'kalman.wheel_radius_m')
+    # the same robot and law as the file's own model
+    act = ACTUATED_INPUTS
+    scale = max(1.0, float(np.max(np.abs(g.A))))
+    if np.max(np.abs(k.A[:10, :10] - g.A)) > 1e-9 * scale or \
+            np.max(np.abs(k.B[:10] - g.B[:, act])) > 1e-9 * max(1.0, float(np.max(np.abs(g.B)))):
+        f.fail('kalman.A', 'its robot block differs from the file\'s A, B (in SI)')
+    if np.max(np.abs(k.K[:, :10] - g.K[act, :])) > 1e-9 * max(1.0, float(np.max(np.abs(g.K)))):
+        f.fail('kalman.K', 'its state columns differ from the file\'s K (in SI)')
+    k.filter_spectral_radius = spectral_radius((np.eye(n) - k.L.dot(k.C)).dot(k.A))
+    if k.filter_spectral_radius >= 1.0:
+        f.fail('kalman.L', 'gives an unstable filter: spectral radius of (I - L C) A is {:.6f} >= 1'.format(
+            k.filter_spectral_radius))
+    ref = fold(k.A, k.B, k.C, k.L, k.K, k.wheel_radius_m)
+    err = np.abs(k.law_M - ref) / np.maximum(1e-300, np.abs(ref).max(axis=1, keepdims=True))
+    if np.max(err) > _LAW_RTOL:
+        i, j = np.unravel_index(np.argmax(err), err.shape)
+        f.fail('kalman.law.M', 'is not the fold of kalman.A, B, C, L, K: entry [{}][{}] is {!r}, the fold '
+               'gives {!r}'.format(i, j, float(k.law_M[i, j]), float(ref[i, j])))
+    return k

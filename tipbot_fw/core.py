@@ -1,0 +1,28 @@
+"""The tick core: raw readings + battery voltage -> duties and a log row. No I/O, no time.
+
+The loop on the brick and a replay on the host call the very same methods with the same
+numbers, so a replay of a log reproduces the robot's computation. Two cores, chosen by the
+configuration's `estimator`:
+
+- `kalman` (the default): tipbot_fw.kalman.KalmanCore, the steady-state Kalman filter and the
+  LQR law in fixed point (the gains file's `kalman` block);
+- `detector`: tipbot_fw.detector_core.DetectorCore, the paper's signal chain, Section 6 robust
+  detector and law, for reproducing the paper.
+
+Both offer: set_gyro_bias(bias_dps) after the calibration; set_battery(battery_v) before the
+first tick and whenever the reading changes (outside the ticks); start(enc, gyro, buf, offset)
+for the first tick and step(...) for every later one, which write the tick's memory row (all
+but its two time columns) into buf at byte offset `offset` and return (duties, stop);
+restore(file_row, encoder_offsets) to continue from a logged row; `rows`, the row layout
+(mem_names, row_bytes, flags_index, columns, to_file()); angles(mem_row) for a stop message;
+header() for the log; limits; battery_v.
+"""
+from tipbot_fw.detector_core import DetectorCore
+from tipbot_fw.kalman import KalmanCore
+
+CORES = {'kalman': KalmanCore, 'detector': DetectorCore}
+
+
+def make_core(gains, config, counts_per_rot=(360, 360, 360, 360)):
+    """The core the configuration selects, for these gains."""
+    return CORES[config['estimator']](gains, config, counts_per_rot)

@@ -1,0 +1,440 @@
+"""The default control core: steady-state Kalman filter and LQR law, in fixed point.
+
+The law (docs/architecture.md, "Kalman filter"; designed by hostsim.model.kalman, carried by the
+gains file's `kalman` block, SI): the filter's state x^ (n = 13: the 10 robot states, the two
+wheels' input disturbances, the gyro bias), the reading m_k = [phi_r, phi_l, th2, th3, gyro]
+(wheel encoders relative to link 1, joint encoders, gyro rate), the applied input u_{k-1}:
+
+    x^_k = F x^_{k-1} + G_u u_{k-1} + L m_k,      F = (I - L C) A,  G_u = (I - L C) B
+    u_k  = -K x^_k                                (then rounded to a duty and saturated)
+
+The wheel angles grow without bound as the robot rolls, so the carried state is not x^ but
+
+    xi_k = x^_k - T m_k,    T: R_w on d_r from phi_r and on d_l from phi_l (zero elsewhere)
+
+(xi_d = d^ - R_w phi: the wheel position relative to the wheel's own encoder, a few cm at most;
+every other entry of xi is that of x^). Written in xi, the update sees the wheel angles only
+as their change over the tick (the absolute angle's coefficient, (F - I) T + L on those
+columns, is exactly zero because the model does not depend on where the robot stands):
+
+    xi_k = F xi_{k-1} + G_u u_{k-1} - F T dm_k + (F T + L - T) m_k
+    u_k  = -K xi_k - K T m_k
+
+One matrix holds both (the gains file's `kalman.law.M`, rows [u_k, xi_k], columns
+[u_{k-1}, xi_{k-1}, dphi_r, dphi_l, m_k]). Every bounded quantity then has a small fixed-point
+range, which is what lets the tick run in int64 (tipbot_fw.fixedpoint): per tick
+
+    v    = [duty_{k-1} (4) | xi_{k-1} (n) | dcount_r, dcount_l, count_r, count_l,
+            count_2 - zero_2, count_3 - zero_3, gyro_rate (raw ints) | 1]
+    acc  = M_int v                 one int64 numpy product
+    v[:4+n] = acc >> shifts        the duties (rounded) and xi_k, in place
+
+M_int folds in everything that is constant between battery readings: radians per count and
+polarity of each encoder, the gyro's sign and deg -> rad, volts per duty of the applied input,
+duties per volt and polarity of the commands, the encoder zeros and the start pose (the
+constant column), the rounding constants. It is rebuilt when the battery reading changes
+(outside the tick). The duties come out as rounded integers; saturation clips them.
+"""
+import math
+import struct
+
+import numpy as np
+
+from tipbot_fw import fixedpoint as fx
+from tipbot_fw import logfile
+from tipbot_fw.config import motor_polarity
+from tipbot_fw.safety import DeviceFailure
+
+FALL = logfile.FLAG_BITS['fall']
+JOINT_LIMIT = logfile.FLAG_BITS['joint_limit']
+STOP_FLAGS = FALL | JOINT_LIMIT
+N_U = 4
+N_MEAS = 5
+N_IN = 7                 # dcount_r, dcount_l, count_r, count_l, rel count_2, rel count_3, gyro rate
+# Bounds of the integer inputs (fixed-point ranges): duties; a wheel's count change in one tick
+# (a motor turns at most ~30 rad/s, 0.15 rad = 9 counts per 5 ms: more is a failed read);
+# a wheel's absolute count (sysfs `position` is an int32); a joint's count from its zero (the
+# joint limit stops the run first, checked before the product); the gyro's raw int16 rate.
+DUTY_BOUND = 100
+WHEEL_STEP_BOUND = 2 ** 10
+WHEEL_COUNT_BOUND = 2 ** 31
+JOINT_COUNT_BOUND = 2 ** 10
+GYRO_BOUND = 2 ** 15
+INPUT_BOUNDS = (WHEEL_STEP_BOUND,) * 2 + (WHEEL_COUNT_BOUND,) * 2 + (JOINT_COUNT_BOUND,) * 2 + (GYRO_BOUND,)
+# Battery range the row exponents are chosen for (the duty scaling depends on it).
+BATTERY_RANGE_V = (4.0, 12.0)
+LAW_COLUMNS = ('u_r', 'u_l', 'u_th2', 'u_th3')      # then xi_*, dphi_r, dphi_l, then m
+MEASUREMENTS = ('phi_r', 'phi_l', 'th2', 'th3', 'gyro')
+
+_IN = struct.Struct('<7q')
+_HEAD = struct.Struct('<7q')          # duty_r..duty_3, xi_d_r, xi_d_l, xi_th1
+_DUTIES = struct.Struct('<4q')
+_ROW_FLOATS = struct.Struct('<3d')    # battery_v, flags, gyro_angle
+
+
+def measurement_matrix(n, rw_m):
+    """C_a (5 x n): [phi_r, phi_l] = d / R_w - th1 (the wheel encoders sit on link 1), th2, th3,
+    gyro = th1_dot + the bias (the last state)."""
+    c = np.zeros((N_MEAS, n))
+    c[0, 0] = c[1, 1] = 1.0 / rw_m
+    c[0, 2] = c[1, 2] = -1.0
+    c[2, 3] = c[3, 4] = c[4, 7] = c[4, n - 1] = 1.0
+    return c
+
+
+def augmented_model(a, b_act, rw_m, dist_inputs):
+    """(A_a, B_a, C_a) of the filter's model from the robot's discrete model (SI; b_act: the
+    actuated inputs' columns): state [x (10), w (one per disturbed input), gyro bias], the
+    disturbances entering like their inputs, disturbances and bias constant (random walks)."""
+    nw = len(dist_inputs)
+    n = 10 + nw + 1
+    aa = np.zeros((n, n))
+    aa[:10, :10] = a
+    aa[:10, 10:10 + nw] = b_act[:, list(dist_inputs)]
+    aa[10:, 10:] = np.eye(nw + 1)
+    ba = np.zeros((n, N_U))
+    ba[:10] = b_act
+    return aa, ba, measurement_matrix(n, rw_m)
+
+
+def fold(a, b, c, gain, k, rw_m):
+    """The per-tick matrix of the module docstring (SI, float64) from the filter's A_a (n x n),
+    B_a (n x 4), C_a (5 x n), gain L (n x 5), law K_a (4 x n) and the wheel radius of C_a."""
+    n = a.shape[0]
+    ikc = np.eye(n) - gain.dot(c)
+    f = ikc.dot(a)
+    g_u = ikc.dot(b)
+    t = np.zeros((n, N_MEAS))
+    t[0, 0] = t[1, 1] = rw_m
+    ft = f.dot(t)
+    w = ft + gain - t
+    w[:, 0:2] = 0.0     # exactly zero by construction (module docstring); what is left is round-off
+    state = np.hstack([g_u, f, -ft[:, 0:2], w])
+    out = -k.dot(state)
+    out[:, N_U + n + 2:] -= k.dot(t)
+    return np.vstack([out, state])
+
+
+def reference_step(kal, xf, u_applied, m):
+    """One tick written out (x^_{k-1}, u_{k-1} volts, m_k SI) -> (x^_k, u_k unsaturated)."""
+    xp = kal.A.dot(xf) + kal.B.dot(u_applied)
+    xf1 = xp + kal.L.dot(m - kal.C.dot(xp))
+    return xf1, -kal.K.dot(xf1)
+
+
+class KalmanRows(object):
+    """The log row of a Kalman tick (docs/log-format.md): what the brick packs, and the file
+    columns made of it at writing time."""
+
+    def __init__(self, core):
+        self.core = core
+        n = core.n
+        self.mem_names = (['t_start', 't_written', 'battery_v', 'flags', 'gyro_angle']
+                          + ['duty_r', 'duty_l', 'duty_2', 'duty_3'] + ['xi_' + s for s in core.state_names]
+                          + ['dcount_r', 'dcount_l', 'enc_r', 'enc_l', 'rel_2', 'rel_3', 'gyro_rate'])
+        self.row_bytes = 8 * len(self.mem_names)
+        self.flags_index = 3
+        self.ints_start = 5
+        self.columns = self.columns_for(core.state_names, core.state_units)
+        self.column_names = [c[0] for c in self.columns]
+        self.n = n
+
+    @staticmethod
+    def columns_for(state_names, state_units):
+        """(name, unit) of the file's columns for the filter's states."""
+        return ([('time_s', 's'), ('tick_s', 's'), ('enc_r', 'count'), ('enc_l', 'count'),
+                 ('enc_2', 'count'), ('enc_3', 'count'), ('gyro_angle', 'deg'), ('gyro_rate', 'deg/s'),
+                 ('battery_v', 'V'), ('flags', 'bits'),
+                 ('duty_r', '%'), ('duty_l', '%'), ('duty_2', '%'), ('duty_3', '%')]
+                + [('xi_' + s, u) for s, u in zip(state_names, state_units)])
+
+    def to_file(self, mem_rows, t0=0.0):
+        """In-memory rows (a float64 view, k x len(mem_names)) -> file rows (float64)."""
+        mem = np.ascontiguousarray(mem_rows, dtype='<f8')
+        ints = mem[:, self.ints_start:].view('<i8')
+        n = self.n
+        out = np.zeros((len(mem), len(self.columns)))
+        out[:, 0] = mem[:, 0] - t0
+        out[:, 1] = mem[:, 1] - mem[:, 0]
+        zeros = self.core.offsets or (0, 0, 0, 0)
+        out[:, 2] = ints[:, 4 + n + 2]
+        out[:, 3] = ints[:, 4 + n + 3]
+        out[:, 4] = ints[:, 4 + n + 4] + zeros[2]
+        out[:, 5] = ints[:, 4 + n + 5] + zeros[3]
+        out[:, 6] = mem[:, 4]
+        out[:, 7] = ints[:, 4 + n + 6]
+        out[:, 8] = mem[:, 2]
+        out[:, 9] = mem[:, 3]
+        out[:, 10:14] = ints[:, 0:4]
+        out[:, 14:14 + n] = ints[:, 4:4 + n] * self.core.state_lsb[None, :]
+        return out
+
+    def col(self, name):
+        return self.column_names.index(name)
+
+
+class KalmanCore(object):
+    """Per-tick computation of the Kalman law; its whole state is in each log row.
+
+    Construct, then set_gyro_bias() (after calibration), set_battery() before the first tick
+    and whenever the reading changes (outside the ticks), start() for the first tick, step()
+    for every later one. Both write the tick's memory row (KalmanRows) except its time
+    columns into the bytearray buf at byte offset `offset` and return (duties, stop): duties
+    for Devices.write_duties, stop nonzero (FALL / JOINT_LIMIT) if the motors must be stopped
+    now instead.
+    """
+    estimator = 'kalman'
+
+    def __init__(self, gains, config, counts_per_rot=(360, 360, 360, 360)):
+        kal = gains.kalman
+        self.gains = gains
+        self.kal = kal
+        n = self.n = kal.n
+        self.state_names = list(kal.state_names)
+        self.state_units = list(kal.state_units)
+        self.polarity = motor_polarity(config)
+        self.counts_per_rot = tuple(counts_per_rot)
+        self.rad_per_count = [self.polarity[i] * 2.0 * math.pi / self.counts_per_rot[i] for i in range(4)]
+        gyro_rad = config['gyro_sign'] * math.pi / 180.0
+        pose = config['start_pose_rad']
+        self.pose = (float(pose['th1']), float(pose['th2']), float(pose['th3']))
+        self.u_max_v = gains.u_max_v
+        # fixed-point format: state exponents from the gains' bounds, row exponents for the
+        # worst battery of BATTERY_RANGE_V (so they never change during a run)
+        self.q = fx.state_exponents(kal.state_bounds)
+        self.state_lsb = np.array([2.0 ** -e for e in self.q])
+        meas = [self.rad_per_count[0], self.rad_per_count[1], self.rad_per_count[0], self.rad_per_count[1],
+                self.rad_per_count[2], self.rad_per_count[3], gyro_rad]
+        self.meas_factor = meas
+        lo, hi = BATTERY_RANGE_V
+        v_bounds = [DUTY_BOUND] * N_U + [2.0 ** fx.STATE_BITS] * n + list(INPUT_BOUNDS)
+        m_abs = np.abs(kal.law_M) * np.array(self._col_factor(hi, abs_only=True))[None, :]
+        m_abs = m_abs * np.array([100.0 / lo] * N_U + [1.0] * n)[:, None]
+        # the constant column: the start pose and the zeros of the wheel counts (|zero| < 2^31)
+        const_bound = np.abs(kal.law_M[:, N_U + n + 2:N_U + n + 4]).dot(np.abs(meas[2:4])) * 2.0 ** 31 \
+            + np.abs(kal.law_M[:, N_U + n + 4:N_U + n + 6]).dot([3.2, 3.2])
+        const_bound = const_bound * np.array([100.0 / lo] * N_U + [1.0] * n)
+        rows = np.hstack([m_abs, const_bound[:, None]])
+        self.row_exp = fx.row_exponents(rows.tolist(), v_bounds + [1.0])
+        self.shift_list = self.row_exp[:N_U] + [self.row_exp[N_U + i] - self.q[i] for i in range(n)]
+        if min(self.shift_list) < 1:
+            raise ValueError('kalman law: a row has no fraction bits left (shifts {})'.format(self.shift_list))
+        self.v_bounds = v_bounds + [1.0]
+        self.shifts = np.array(self.shift_list, dtype=np.int64)
+        # buffers: v (int64, the product's input, also the row's integer block), acc
+        self.n_v = N_U + n + N_IN + 1
+        self.v_bytes = bytearray(8 * self.n_v)
+        self.v = np.frombuffer(self.v_bytes, dtype='<i8')
+        self.v[self.n_v - 1] = 1
+        self.acc = np.zeros(N_U + n, dtype=np.int64)
+        self.v_head = self.v[0:N_U + n]
+        self.M = np.zeros((N_U + n, self.n_v), dtype=np.int64)
+        self.dot = self.M.dot
+        self.rshift = np.right_shift
+        self._in_off = 8 * (N_U + n)
+        self._row_ints = 8 * (N_U + n + N_IN)
+        self.rows = KalmanRows(self)
+        lim = config['limits']
+        self.limits = (lim['th1_rad'], lim['th2_rad'], lim['th3_rad'])
+        t1 = fx.round_half_up(lim['th1_rad'], self.q[2])
+        self.th1_bounds = (-t1, t1)
+        self.joint_bounds = self._joint_bounds(lim)
+        self.battery_v = None
+        self.offsets = None
+        self.prev = None
+        self.bias0 = None
+        self.x0 = None
+
+    def _joint_bounds(self, lim):
+        """Counts from the zero of joints 2 and 3 within their limits (integer compares)."""
+        out = []
+        for i, name in ((2, 'th2_rad'), (3, 'th3_rad')):
+            s = self.rad_per_count[i]
+            a = (-lim[name] - self.pose[i - 1]) / s
+            b = (lim[name] - self.pose[i - 1]) / s
+            lo, hi = int(math.ceil(min(a, b))), int(math.floor(max(a, b)))
+            if max(-lo, hi) >= JOINT_COUNT_BOUND:
+                raise ValueError('limits.{} spans {} counts of joint {}: the fixed-point law allows {}'.format(
+                    name, max(-lo, hi), i, JOINT_COUNT_BOUND - 1))
+            out += [lo, hi]
+        return tuple(out)
+
+    def _col_factor(self, battery_v, abs_only=False):
+        pol = (1, 1, 1, 1) if abs_only else self.polarity
+        f = [pol[i] * battery_v / 100.0 for i in range(N_U)]
+        f += [2.0 ** -e for e in self.q]
+        f += [abs(x) for x in self.meas_factor] if abs_only else list(self.meas_factor)
+        return f
+
+    def set_gyro_bias(self, gyro_bias_dps):
+        """The calibrated bias (deg/s, the sensor's frame): the filter's initial bias state."""
+        self.bias0 = float(gyro_bias_dps)
+
+    def set_battery(self, battery_v):
+        """Rebuild the integer matrix for this battery voltage (module docstring)."""
+        lo, hi = BATTERY_RANGE_V
+        if not lo <= battery_v <= hi:
+            raise DeviceFailure('battery reading {} V is outside the {}..{} V the control law is scaled for'.format(
+                battery_v, lo, hi))
+        self.battery_v = battery_v
+        self.dlim = min(100, int(round(self.u_max_v * 100.0 / battery_v)))
+        n = self.n
+        rowf = [self.polarity[i] * 100.0 / battery_v for i in range(N_U)] + [1.0] * n
+        law = self.kal.law_M
+        self.M[:, :self.n_v - 1] = fx.quantize(law, self._col_factor(battery_v), rowf, self.row_exp)
+        self.scale_row_f = rowf
+        self.M[:, self.n_v - 1] = self._constant_column(rowf)
+        self._check_range()
+
+    def _check_range(self):
+        """No sum of the product can overflow while the inputs keep their bounds (it cannot
+        by construction: this guards the construction)."""
+        worst = float(np.max(fx.accumulator_bound(self.M, self.v_bounds)))
+        if not worst <= 2.0 ** fx.ACC_BITS:
+            raise ValueError('kalman law: the fixed-point product could reach {:.3g} > 2^{}'.format(
+                worst, fx.ACC_BITS))
+
+    def _constant_column(self, rowf):
+        """Start pose of the joints (float, in a fixed order), the wheel counts' zeros (exact
+        integer arithmetic on M_int) and the rounding constants."""
+        law = self.kal.law_M
+        n = self.n
+        j2, j3 = N_U + n + 2 + 2, N_U + n + 2 + 3
+        w_r, w_l = N_U + n + 2, N_U + n + 3
+        zeros = self.offsets or (0, 0, 0, 0)
+        out = []
+        for i in range(N_U + n):
+            c = law[i, j2] * self.pose[1] + law[i, j3] * self.pose[2]
+            k = fx.round_half_up(c * rowf[i], self.row_exp[i])
+            k -= int(self.M[i, w_r]) * zeros[0] + int(self.M[i, w_l]) * zeros[1]
+            out.append(k + (1 << (self.shift_list[i] - 1)))
+        return np.array(out, dtype=np.int64)
+
+    def initial_state(self):
+        """x^_0 (SI): the start pose, at rest, no disturbance, the calibrated bias."""
+        th1, th2, th3 = self.pose
+        rw = self.kal.wheel_radius_m
+        # the bias in the filter's frame: the reading times gyro_sign, in rad/s
+        return [rw * th1, rw * th1, th1, th2, th3] + [0.0] * (self.n - 6) + [self.meas_factor[6] * self.bias0]
+
+    def start(self, enc, gyro, buf, offset):
+        """First tick: the counts are the encoder zeros; xi_0 = x^_0 (the readings are zero
+        relative to themselves), u_0 = -K x^_0 rounded to duties (Python floats, fixed order)."""
+        self.offsets = (enc[0], enc[1], enc[2], enc[3])
+        self.prev = (enc[0], enc[1])
+        self.M[:, self.n_v - 1] = self._constant_column(self.scale_row_f)
+        x0 = [float(v) for v in self.initial_state()]
+        self.x0 = x0
+        k = self.kal.K
+        z = [fx.round_half_up(x0[j], self.q[j]) for j in range(self.n)]
+        duties = []
+        for i in range(N_U):
+            u = 0.0
+            for j in range(self.n):
+                u -= k[i, j] * x0[j]
+            duties.append(int(math.floor(u * self.scale_row_f[i] + 0.5)))
+        self.v[N_U:N_U + self.n] = z
+        _IN.pack_into(self.v_bytes, self._in_off, 0, 0, enc[0], enc[1], 0, 0, gyro[1])
+        self._check_range()
+        return self._finish(duties, z[2], gyro[0], buf, offset, True)
+
+    def step(self, enc, gyro, buf, offset):
+        """Every later tick: the module docstring's product, in integers."""
+        e0, e1, e2, e3 = enc
+        p0, p1 = self.prev
+        self.prev = (e0, e1)
+        z0, z1, z2, z3 = self.offsets
+        d0 = e0 - p0
+        d1 = e1 - p1
+        r2 = e2 - z2
+        r3 = e3 - z3
+        lim = WHEEL_STEP_BOUND
+        if not (-lim < d0 < lim and -lim < d1 < lim):
+            raise DeviceFailure('a wheel encoder jumped by {} counts in one tick: a failed read'.format(
+                d0 if not -lim < d0 < lim else d1))
+        j2lo, j2hi, j3lo, j3hi = self.joint_bounds
+        _IN.pack_into(self.v_bytes, self._in_off, d0, d1, e0, e1, r2, r3, gyro[1])
+        if not (j2lo <= r2 <= j2hi and j3lo <= r3 <= j3hi):
+            # stop before the product: beyond the limits the fixed-point range is not assured
+            return self._row(JOINT_LIMIT, gyro[0], buf, offset)
+        self.dot(self.v, self.acc)
+        self.rshift(self.acc, self.shifts, self.v_head)
+        q0, q1, q2, q3, _, _, th1 = _HEAD.unpack_from(self.v_bytes, 0)
+        return self._finish((q0, q1, q2, q3), th1, gyro[0], buf, offset)
+
+    def _finish(self, q, th1, gyro_angle, buf, offset, pack=False):
+        dlim = self.dlim
+        q0, q1, q2, q3 = q
+        bits = 0
+        if q0 > dlim:
+            q0, bits = dlim, 1
+        elif q0 < -dlim:
+            q0, bits = -dlim, 1
+        if q1 > dlim:
+            q1, bits = dlim, bits | 2
+        elif q1 < -dlim:
+            q1, bits = -dlim, bits | 2
+        if q2 > dlim:
+            q2, bits = dlim, bits | 4
+        elif q2 < -dlim:
+            q2, bits = -dlim, bits | 4
+        if q3 > dlim:
+            q3, bits = dlim, bits | 8
+        elif q3 < -dlim:
+            q3, bits = -dlim, bits | 8
+        if bits or pack:
+            _DUTIES.pack_into(self.v_bytes, 0, q0, q1, q2, q3)
+        lo, hi = self.th1_bounds
+        if not lo <= th1 <= hi:
+            bits |= FALL
+        self._row(bits, gyro_angle, buf, offset)
+        return [q0, q1, q2, q3], bits & STOP_FLAGS
+
+    def _row(self, flags, gyro_angle, buf, offset):
+        _ROW_FLOATS.pack_into(buf, offset + 16, self.battery_v, flags, gyro_angle)
+        buf[offset + 40:offset + 40 + self._row_ints] = self.v_bytes[0:self._row_ints]
+        return [0, 0, 0, 0], flags & STOP_FLAGS
+
+    # -- inspection, replay
+    def estimate(self):
+        """x^_k after the last tick (SI floats): xi plus R_w times the wheel angles."""
+        n = self.n
+        xi = [int(v) * l for v, l in zip(self.v[N_U:N_U + n], self.state_lsb)]
+        rw = self.kal.wheel_radius_m
+        for i in (0, 1):
+            xi[i] += rw * self.rad_per_count[i] * (int(self.v[N_U + n + 2 + i]) - self.offsets[i])
+        return xi
+
+    @property
+    def duties(self):
+        return [int(d) for d in self.v[0:N_U]]
+
+    def angles(self, mem_row):
+        """(th1, th2, th3) of a memory row (float64 view), for the stop message."""
+        ints = np.ascontiguousarray(mem_row, dtype='<f8')[self.rows.ints_start:].view('<i8')
+        n = self.n
+        th1 = int(ints[N_U + 2]) * float(self.state_lsb[2])
+        th2 = self.pose[1] + self.rad_per_count[2] * int(ints[N_U + n + 4])
+        th3 = self.pose[2] + self.rad_per_count[3] * int(ints[N_U + n + 5])
+        return th1, th2, th3
+
+    def header(self):
+        """What the log header needs to replay this core (docs/log-format.md)."""
+        return {'estimator': self.estimator, 'encoder_offsets': list(self.offsets) if self.offsets else None,
+                'x_hat_0': self.x0, 'state_names': self.state_names, 'state_units': self.state_units,
+                'fixed_point': {'state_exponents': self.q, 'row_exponents': self.row_exp,
+                                'shifts': self.shift_list}}
+
+    def restore(self, file_row, encoder_offsets):
+        """State as right after the tick of a file row (a ring-buffer log's first kept row)."""
+        r = self.rows
+        self.offsets = tuple(int(v) for v in encoder_offsets)
+        self.M[:, self.n_v - 1] = self._constant_column(self.scale_row_f)
+        enc = [int(file_row[r.col(c)]) for c in ('enc_r', 'enc_l', 'enc_2', 'enc_3')]
+        self.prev = (enc[0], enc[1])
+        duties = [int(file_row[r.col(c)]) for c in ('duty_r', 'duty_l', 'duty_2', 'duty_3')]
+        xi = [int(round(float(file_row[r.col('xi_' + s)]) * 2.0 ** e)) for s, e in zip(self.state_names, self.q)]
+        _DUTIES.pack_into(self.v_bytes, 0, *duties)
+        self.v[N_U:N_U + self.n] = xi
+        _IN.pack_into(self.v_bytes, self._in_off, 0, 0, enc[0], enc[1], enc[2] - self.offsets[2],
+                      enc[3] - self.offsets[3], int(file_row[r.col('gyro_rate')]))
