@@ -109,12 +109,13 @@ class Lockstep(object):
     plant one period with the duties the devices hold (none before the first write: the robot
     is held still during calibration), then sets the devices' raw readings from the new state.
 
-    Sensors: 1-count encoders (360 per turn), wheel encoders relative to link 1, gyro rate in
-    integer deg/s plus `gyro_bias_dps`, gyro angle in integer degrees.
+    Sensors: 1-count encoders (360 per turn, reading enc_zero at zero), wheel encoders relative
+    to link 1, gyro rate in integer deg/s plus `gyro_bias_dps`, gyro angle in integer degrees.
     """
 
-    def __init__(self, x0=None, battery_v=8.0, gyro_bias_dps=0, disturbance=None):
+    def __init__(self, x0=None, battery_v=8.0, gyro_bias_dps=0, disturbance=None, enc_zero=(0, 0, 0, 0)):
         self.A, self.B = plant()
+        self.enc_zero = enc_zero
         self.x = np.zeros(10) if x0 is None else np.array(x0, dtype=float)
         self.bias = gyro_bias_dps
         self.w = np.zeros(5) if disturbance is None else np.array(disturbance, dtype=float)
@@ -142,6 +143,7 @@ class Lockstep(object):
         k = 360.0 / (2.0 * math.pi)
         phi_r = x[0] / R_W - x[2]
         phi_l = x[1] / R_W - x[2]
-        self.dev.enc = (int(round(phi_r * k)), int(round(phi_l * k)),
-                        int(round(x[3] * k)), int(round(x[4] * k)))
+        z = self.enc_zero
+        self.dev.enc = (int(round(phi_r * k)) + z[0], int(round(phi_l * k)) + z[1],
+                        int(round(x[3] * k)) + z[2], int(round(x[4] * k)) + z[3])
         self.dev.gyro = (int(round(math.degrees(x[2]))), int(round(math.degrees(x[7]))) + self.bias)

@@ -117,7 +117,8 @@ def test_on_robot_bench_runs_against_any_devices():
     lines = []
     brick_bench(dev, S.load(), S.fw_config(), 40, say=lines.append)
     assert [line.split(':')[0].strip() for line in lines] == [
-        'read_raw (5 reads)', 'write_duties (4 writes)', 'Core.step (compute)',
-        'loop tick (read..write)', 'overruns']
+        'read_raw (5 reads)', 'write_duties (4 writes)', 'core step (compute)',
+        'loop tick (read..write)', 'overruns', 'a tick', 'verdict']
+    assert 'of the 5 ms period' in lines[5] and 'this brick keeps 5 ms' in lines[6]
     assert dev.duties == [0, 0, 0, 0] and dev.stop_calls >= 2
     assert dev.duty_writes >= 40 * 4      # the pattern, not the controller, was written

@@ -68,7 +68,7 @@ def test_non_number_entry(tmp_path):
 
 
 def test_unknown_schema_version(tmp_path):
-    refused(tmp_path, doc_with(schema_version=2), 'field schema_version is 2, this firmware reads only 1')
+    refused(tmp_path, doc_with(schema_version=1), 'field schema_version is 1, this firmware reads only 2')
 
 
 def test_unknown_units(tmp_path):

@@ -7,7 +7,7 @@ import pytest
 import fw_support as S
 from tipbot_fw import logfile
 from tipbot_fw.clock import VirtualClock
-from tipbot_fw.core import Core
+from tipbot_fw.core import make_core
 from tipbot_fw.devices import MemoryDevices
 from tipbot_fw.loop import ControlLoop
 from tipbot_fw.safety import OverrunLimit
@@ -20,8 +20,9 @@ TS = S.TS
 
 def make_loop(clock, dev=None, duration_s=1.0, capacity=1000, **kw):
     dev = dev or MemoryDevices()
-    core = Core(S.load(), S.fw_config(), 0.0)
-    log = logfile.LogBuffer(capacity)
+    core = make_core(S.load(), S.fw_config())
+    core.set_gyro_bias(0.0)
+    log = logfile.LogBuffer(capacity, core.rows)
     loop = ControlLoop(dev, core, clock, log, TS, 8.0, duration_s=duration_s, **kw)
     return loop, dev, log
 
@@ -77,7 +78,7 @@ def test_consecutive_overruns_stop_the_loop_and_are_flagged():
     loop, dev, log = make_loop(clock, max_consecutive_overruns=5)
     with pytest.raises(OverrunLimit, match='5 consecutive overruns'):
         loop.run()
-    flags = log.mem[:log.count, logfile.MEM_FLAGS].astype(int)
+    flags = log.mem[:log.count, log.rows.flags_index].astype(int)
     late = (flags & OVERRUN) != 0
     assert late.sum() == 5 and late[-5:].all()
     assert loop.stats.overruns == 5
@@ -128,4 +129,15 @@ def test_balances_the_simulated_robot_in_lock_step():
     assert len(states) == 599
     assert np.abs(states[:, 2]).max() < 0.06
     assert np.abs(states[-200:, 2]).max() < 0.02     # upright in the last second
+
+
+def test_the_detector_core_balances_the_simulated_robot_too():
+    sim = S.Lockstep(x0=[0, 0, 0.05, 0, 0, 0, 0, 0, 0, 0], gyro_bias_dps=3)
+    states = []
+    sim.on_step = lambda s: states.append(s.x.copy())
+    config = S.fw_config(start_pose_rad={'th1': 0.05}, estimator='detector')
+    code, header = run_session(sim.dev, S.load(), config, sim.clock, duration_s=3.0, say=lambda m: None)
+    states = np.array(states)
+    assert code == 0 and header['estimator'] == 'detector'
+    assert np.abs(states[-200:, 2]).max() < 0.02
     assert np.abs(states[-1, :2]).max() < 0.02        # and near where it started

@@ -26,8 +26,12 @@ def assert_stopped_and_logged(dev, log_path, reason, code, header):
     assert dev.stop_calls >= 1 and dev.duties == [0, 0, 0, 0]
     h, rows = read_log(log_path)
     assert h['stop_reason'] == reason and h['exit_code'] == code == header['exit_code']
-    assert rows.shape == (h['ticks'] - h['first_tick'], logfile.N_COLUMNS)
+    assert rows.shape == (h['ticks'] - h['first_tick'], len(h['columns']))
     return h, rows
+
+
+def col_of(h, name):
+    return [c['name'] for c in h['columns']].index(name)
 
 
 class TickCounter(object):
@@ -57,9 +61,9 @@ def test_fall_stops_the_motors_in_the_same_tick(tmp_path):
     clock = VirtualClock(on_sleep=TickCounter(dev, lambda n: setattr(dev, 'gyro', (0, 100))))
     code, header, path, msgs = session(tmp_path, dev, clock)
     h, rows = assert_stopped_and_logged(dev, path, 'fall', 6, header)
-    th1 = rows[:, col('y_th1')]
+    th1 = rows[:, col_of(h, 'xi_th1')]                      # the Kalman filter's tilt estimate
     assert th1[-1] > 0.6 and np.all(th1[:-1] <= 0.6)       # stopped at the first tick beyond
-    assert int(rows[-1, col('flags')]) & FALL
+    assert int(rows[-1, col_of(h, 'flags')]) & FALL
     last_tick = dev.trace[len(dev.trace) - 1 - dev.trace[::-1].index('read_raw'):]
     assert last_tick == ['read_raw', 'stop_all']             # no duty written in that tick
     assert 'fall: th1 = 0.60' in h['stop_message'] or 'fall: th1 = 0.61' in h['stop_message']
@@ -70,6 +74,18 @@ def test_joint_limit_stops_too(tmp_path):
     clock = VirtualClock(on_sleep=TickCounter(dev, lambda n: setattr(dev, 'enc', (0, 0, 0, 5 * n))))
     code, header, path, _ = session(tmp_path, dev, clock)
     h, rows = assert_stopped_and_logged(dev, path, 'joint_limit', 6, header)
+    th3 = rows[:, col_of(h, 'enc_3')] * 2 * np.pi / 360
+    assert abs(th3[-1]) > 1.2 and np.all(np.abs(th3[:-1]) <= 1.2)
+    assert int(rows[-1, col_of(h, 'flags')]) & JOINT_LIMIT
+    assert 'th3 = 1.22' in h['stop_message']
+
+
+def test_the_detector_core_stops_at_the_limits_too(tmp_path):
+    dev = MemoryDevices()
+    clock = VirtualClock(on_sleep=TickCounter(dev, lambda n: setattr(dev, 'enc', (0, 0, 0, 5 * n))))
+    code, header, path, _ = session(tmp_path, dev, clock, config=S.fw_config(estimator='detector'))
+    h, rows = assert_stopped_and_logged(dev, path, 'joint_limit', 6, header)
+    assert h['estimator'] == 'detector' and [c['name'] for c in h['columns']] == logfile.COLUMN_NAMES
     assert abs(rows[-1, col('y_th3')]) > 1.2 and int(rows[-1, col('flags')]) & JOINT_LIMIT
 
 
@@ -158,7 +174,7 @@ def test_overruns(tmp_path):
     code, header, path, _ = session(tmp_path, dev, clock)
     h, rows = assert_stopped_and_logged(dev, path, 'overruns', 7, header)
     assert h['loop']['max_consecutive_overruns'] == 5
-    assert all(int(f) & OVERRUN for f in rows[-5:, col('flags')])
+    assert all(int(f) & OVERRUN for f in rows[-5:, col_of(h, 'flags')])
 
 
 def test_low_battery_refuses_to_start(tmp_path):
@@ -196,7 +212,11 @@ def test_header_has_what_a_replay_needs(tmp_path):
     h, rows = read_log(path)
     assert h['encoder_offsets'] == [123, -45, 6, 7] and h['counts_per_rot'] == [360, 360, 360, 720]
     assert h['calibration']['gyro_bias_dps'] == 2.0
-    assert h['x_tilde_0'] == rows[0, col('xt_d_r'):col('xt_d_r') + 10].tolist()
+    # x^_0: the start pose at rest and the calibrated bias; row 0 holds it in fixed point
+    assert h['estimator'] == 'kalman' and h['x_hat_0'][:12] == [0.0] * 12
+    assert h['x_hat_0'][12] == 2.0 * np.pi / 180
+    xi0 = rows[0, col_of(h, 'xi_d_r'):col_of(h, 'xi_d_r') + 13]
+    np.testing.assert_allclose(xi0, h['x_hat_0'], rtol=0, atol=2.0 ** -30)
     assert h['gains']['sha256'] == 'test-sha' and h['ts_s'] == 0.005
     assert h['config']['limits']['th1_rad'] == 0.6 and 'numpy' in h['versions']
     assert [c['name'] for c in h['columns']][:3] == ['time_s', 'tick_s', 'enc_r']
@@ -215,9 +235,10 @@ def test_polarity_changes_only_the_sign_of_what_the_motor_sees(tmp_path):
                 config=config)
         rows[polarity] = read_log(str(tmp_path / str(polarity) / 'run.log'))[1]
     a, b = rows[1], rows[-1]
-    for c in logfile.COLUMN_NAMES:
+    names = [c['name'] for c in read_log(str(tmp_path / '1' / 'run.log'))[0]['columns']]
+    for i, c in enumerate(names):
         if c not in ('time_s', 'tick_s', 'enc_r', 'duty_r'):
-            np.testing.assert_array_equal(a[:, col(c)], b[:, col(c)], err_msg=c)
-    np.testing.assert_array_equal(a[:, col('enc_r')], -b[:, col('enc_r')])
-    np.testing.assert_array_equal(a[:, col('duty_r')], -b[:, col('duty_r')])
-    assert np.abs(a[:, col('duty_r')]).max() > 0
+            np.testing.assert_array_equal(a[:, i], b[:, i], err_msg=c)
+    np.testing.assert_array_equal(a[:, names.index('enc_r')], -b[:, names.index('enc_r')])
+    np.testing.assert_array_equal(a[:, names.index('duty_r')], -b[:, names.index('duty_r')])
+    assert np.abs(a[:, names.index('duty_r')]).max() > 0

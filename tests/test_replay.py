@@ -32,6 +32,10 @@ def sim_log(tmp_path_factory):
     return simulate(tmp_path_factory.mktemp("sim") / "tipbot-sim.log")
 
 
+def col(header, name):
+    return [c["name"] for c in header["columns"]].index(name)
+
+
 def run_main(capsys, *argv):
     code = replay.main([str(a) for a in argv])
     out, err = capsys.readouterr()
@@ -63,13 +67,33 @@ def test_a_simulated_log_replays_exactly_with_plots(sim_log, tmp_path, capsys):
         png = tmp_path / "plots" / ("tipbot-sim-%s.png" % what)
         assert png.stat().st_size > 10000
     r = replay.replay_log(sim_log)
-    assert r.exact and r.max_diff <= 1e-9
+    assert r.exact and r.max_diff == 0.0            # the Kalman core's integers: bit for bit
     # not vacuous: the run moved, the inputs varied, and every group was compared
-    rows = r.rows
+    rows, h = r.rows, r.header
     assert len(rows) > 100
-    assert np.ptp(rows[:, logfile.col("u_r")]) > 0.1 and np.ptp(rows[:, logfile.col("xt_th1")]) > 1e-3
+    assert np.ptp(rows[:, col(h, "duty_r")]) > 1 and np.ptp(rows[:, col(h, "xi_th1")]) > 1e-3
     labels = [label for label, _ in r.diffs]
-    assert {"estimates x~", "inputs u", "signal chain y", "duties"} <= set(labels)
+    assert {"filter state xi", "duties", "flags"} <= set(labels)
+
+
+def test_a_detector_log_replays_exactly_too(tmp_path):
+    r = replay.replay_log(simulate(tmp_path / "det.log", sysfs=False, config_overrides={"estimator": "detector"}))
+    assert r.exact, r.diffs
+    assert {"estimates x~", "inputs u", "signal chain y", "duties"} <= set(label for label, _ in r.diffs)
+
+
+def test_a_log_of_the_previous_firmware_is_refused_with_what_to_do(tmp_path, capsys):
+    # what tipbot_fw 0.1.0 wrote: the detector's columns, gains of schema 1, no estimator field
+    header, rows = logfile.read_log(simulate(tmp_path / "det.log", sysfs=False,
+                                             config_overrides={"estimator": "detector"}))
+    header["gains"] = dict(header["gains"], schema_version=1)
+    header["versions"] = dict(header["versions"], tipbot_fw="0.1.0")
+    del header["estimator"]
+    path = write_raw(tmp_path / "old.log", header, rows)
+    code, out, err = run_main(capsys, path, "--no-plots")
+    assert code == 2 and out == ""
+    assert "a log of tipbot_fw 0.1.0, recorded with gains of schema 1" in err
+    assert "replay it with the tipbot version that wrote it" in err
 
 
 def test_a_ring_buffer_log_replays_exactly_from_its_first_kept_row(tmp_path):
@@ -89,11 +113,11 @@ def test_a_replay_that_differs_from_the_log_is_reported(sim_log, tmp_path, capsy
     header, rows = logfile.read_log(sim_log)
     rows = rows.copy()
     k = len(rows) // 2
-    rows[k, logfile.col("xt_th1")] += 1e-6          # as if the robot had computed otherwise
+    rows[k, col(header, "xi_th1")] += 2 ** -20      # as if the robot had computed otherwise
     bad = write_raw(tmp_path / "tampered.log", header, rows)
     code, out, err = run_main(capsys, bad, "--no-plots")
     assert code == 1
-    assert "DIFFERS from the log: estimates x~ by up to 1e-06" in out
+    assert "DIFFERS from the log: filter state xi by up to 9.54e-07" in out
     assert "first at row %d" % k in out
 
 
@@ -106,9 +130,9 @@ def test_other_gains_show_what_they_would_have_commanded(sim_log, tmp_path, caps
     r = replay.replay_log(sim_log, gains_path=PAPER_GAINS)
     assert max(m for m, _ in r.other_u_diff.values()) > 0.1
     # the raw readings are the log's; what the controller makes of them is not
-    raw = [logfile.col(n) for n in ("enc_r", "enc_l", "enc_2", "enc_3", "gyro_angle", "gyro_rate")]
+    raw = [col(r.header, n) for n in ("enc_r", "enc_l", "enc_2", "enc_3", "gyro_angle", "gyro_rate")]
     assert np.array_equal(r.other[:, raw], r.rows[:, raw])
-    assert not np.allclose(r.other[:, logfile.col("u_r")], r.rows[:, logfile.col("u_r")])
+    assert not np.allclose(r.other[:, col(r.header, "duty_r")], r.rows[:, col(r.header, "duty_r")])
 
 
 def test_the_logged_gains_are_found_by_their_hash_next_to_the_log(sim_log, tmp_path):
@@ -171,7 +195,7 @@ def test_a_corrupted_log_is_refused(sim_log, tmp_path, capsys, where):
     data = bytearray(_bytes(sim_log))
     header_len = struct.unpack_from("<I", data, len(logfile.MAGIC) + 4)[0]
     pre = len(logfile.MAGIC) + 20
-    i = pre + 10 if where == "header" else pre + header_len + 8 * 50 + 3
+    i = pre + 10 if where == "header" else pre + header_len + 8 * 30 + 3
     data[i] ^= 0x10
     path = tmp_path / "bad.log"
     path.write_bytes(bytes(data))

@@ -19,6 +19,7 @@ STATE_UNITS = ('m', 'm', 'rad', 'rad', 'rad', 'm/s', 'm/s', 'rad/s', 'rad/s', 'r
 INPUT_NAMES = ('r', 'l', 'th1', 'th2', 'th3')
 ACTUATED_NAMES = ('r', 'l', 'th2', 'th3')
 
+# The detector core's layout (tipbot_fw.detector_core; the Kalman core's is tipbot_fw.kalman.KalmanRows).
 # File layout (docs/log-format.md).
 COLUMNS = ([('time_s', 's'), ('tick_s', 's'),
             ('enc_r', 'count'), ('enc_l', 'count'), ('enc_2', 'count'), ('enc_3', 'count'),
@@ -83,6 +84,7 @@ FLAG_BITS = {
     'fall': 32,         # |th1| beyond limits.th1_rad: motors stopped in this tick
     'joint_limit': 64,  # |th2| or |th3| beyond its limit: motors stopped in this tick
 }
+SATURATION_BITS = 1 | 2 | 4 | 8
 
 
 def to_file_layout(mem_rows, polarity, t0=0.0):
@@ -103,15 +105,19 @@ def to_file_layout(mem_rows, polarity, t0=0.0):
 class LogBuffer(object):
     """Preallocated rows; a ring when a run outlives it (the newest rows are kept).
 
-    Tick k's row is packed (struct, little-endian float64, in-memory layout) into the
-    bytearray `data` at byte offset (k % capacity) * MEM_ROW_BYTES; `mem` is a numpy view of the
-    same memory. The loop keeps `count` (rows ever stored).
+    `rows` is the core's row layout (tipbot_fw.core: row_bytes, flags_index, columns,
+    to_file()); tick k's row is packed (struct, little-endian, in-memory layout: the first two
+    slots the tick's clock readings, TIMES) into the bytearray `data` at byte offset
+    (k % capacity) * rows.row_bytes; `mem` is a float64 view of the same memory. The loop keeps
+    `count` (rows ever stored).
     """
 
-    def __init__(self, capacity):
+    def __init__(self, capacity, rows):
         self.capacity = int(capacity)
-        self.data = bytearray(self.capacity * MEM_ROW_BYTES)
-        self.mem = np.frombuffer(self.data, dtype='<f8').reshape(self.capacity, MEM_COLUMNS)
+        self.rows = rows
+        self.row_bytes = rows.row_bytes
+        self.data = bytearray(self.capacity * self.row_bytes)
+        self.mem = np.frombuffer(self.data, dtype='<f8').reshape(self.capacity, self.row_bytes // 8)
         self.count = 0
         self.t0 = 0.0       # the clock at the start of the first tick (set by the loop)
 
@@ -123,7 +129,7 @@ class LogBuffer(object):
         """Number of rows kept."""
         return min(self.count, self.capacity)
 
-    def file_blocks(self, polarity, size=2048):
+    def file_blocks(self, size=2048):
         """The kept rows, oldest first, in the file layout, in blocks of at most `size` rows."""
         n = self.kept()
         start = self.first_tick() % self.capacity
@@ -134,12 +140,12 @@ class LogBuffer(object):
                 block = self.mem[p:end]
             else:                                   # the block wraps around the ring
                 block = np.concatenate((self.mem[p:], self.mem[:end - self.capacity]))
-            yield to_file_layout(block, polarity, self.t0)
+            yield self.rows.to_file(block, self.t0)
 
-    def ordered(self, polarity):
+    def ordered(self):
         """-> (index of the first kept tick, all kept rows oldest first in the file layout)."""
-        blocks = list(self.file_blocks(polarity))
-        rows = np.concatenate(blocks) if blocks else np.zeros((0, N_COLUMNS))
+        blocks = list(self.file_blocks())
+        rows = np.concatenate(blocks) if blocks else np.zeros((0, len(self.rows.columns)))
         return self.first_tick(), rows
 
 

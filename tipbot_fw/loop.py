@@ -1,6 +1,6 @@
 """The fixed-period control loop: timing, the tick pipeline, housekeeping, overrun policy.
 
-Tick pipeline: read raw -> Core (signal chain, detector, control, saturation, duty, log row) ->
+Tick pipeline: read raw -> the core (estimate, control, saturation, duty, log row) ->
 write duties -> the row's time columns. Housekeeping (the battery, about once per second) runs in the slack AFTER the
 tick's writes, so a control tick does exactly one read_raw (5 sysfs reads) and one
 write_duties (at most 4 writes).
@@ -17,10 +17,10 @@ import gc
 import os
 
 from tipbot_fw import logfile
-from tipbot_fw.core import FALL
 from tipbot_fw.safety import DeviceFailure, FallDetected, JointLimit, OverrunLimit
 
 OVERRUN = logfile.FLAG_BITS['overrun']
+FALL = logfile.FLAG_BITS['fall']
 
 
 class LoopStats(object):
@@ -98,13 +98,13 @@ class ControlLoop(object):
         return stats
 
     def _stop(self, k, flags):
-        y = self.log.mem[k % self.log.capacity, logfile.MEM_Y:logfile.MEM_Y + 5]
+        th1, th2, th3 = self.core.angles(self.log.mem[k % self.log.capacity])
         lim1, lim2, lim3 = self.core.limits
         if flags & FALL:
             raise FallDetected('fall: th1 = {:.3f} rad beyond limits.th1_rad = {} at tick {}'.format(
-                y[2], lim1, k))
+                th1, lim1, k))
         raise JointLimit('joint limit: th2 = {:.3f} rad, th3 = {:.3f} rad (limits {}, {}) at tick {}'.format(
-            y[3], y[4], lim2, lim3, k))
+            th2, th3, lim2, lim3, k))
 
     def _run(self, stats):
         # Locals: attribute and global lookups cost real time on the brick.
@@ -118,7 +118,8 @@ class ControlLoop(object):
         buf = log.data
         cap = log.capacity
         pack_times = logfile.TIMES.pack_into
-        row_bytes = logfile.MEM_ROW_BYTES
+        row_bytes = log.row_bytes
+        flags_col = log.rows.flags_index
         period = self.period_s
         n_ticks = self.n_ticks
         battery_every = self.battery_every
@@ -163,7 +164,7 @@ class ControlLoop(object):
                 release += period
                 late = now() - release
                 if late > 0.0:
-                    log.mem[(k - 1) % cap, logfile.MEM_FLAGS] += OVERRUN
+                    log.mem[(k - 1) % cap, flags_col] += OVERRUN
                     stats.overruns += 1
                     consecutive += 1
                     if consecutive > stats.max_consecutive_overruns:

@@ -1,17 +1,25 @@
-"""Replay a log through the same Core the robot ran: the raw readings and battery voltages of
+"""Replay a log through the same core the robot ran: the raw readings and battery voltages of
 the log go in, the rows that come out must equal the logged ones (time columns excepted).
 
-Bit-exact on the machine that wrote the log; across machines the matrix product's summation
-order may differ in the last bits (see docs/log-format.md).
+The Kalman core (the default) computes in integers: its replay is bit-exact on any machine
+(its integer matrix is built from the gains file's decimals by elementwise IEEE-754 operations
+in a fixed order, tipbot_fw.fixedpoint). The detector core computes in float64: bit-exact on
+the machine that wrote the log, within the last bits across machines (docs/log-format.md).
+
+signals() turns the rows of either core into the estimates and inputs in SI, for plots,
+metrics and the simulator (host tools).
 """
+import math
+
 import numpy as np
 
 from tipbot_fw import logfile
-from tipbot_fw.core import Core
+from tipbot_fw.core import make_core
+from tipbot_fw.gains import ACTUATED_INPUTS
 
 
 def core_from_header(header, gains, check_gains=True):
-    """A Core configured exactly as the logged run.
+    """A core configured exactly as the logged run.
 
     check_gains: refuse gains other than the logged ones (False: replay the readings through
     other gains, to see what they would have commanded).
@@ -19,22 +27,26 @@ def core_from_header(header, gains, check_gains=True):
     if check_gains and header['gains']['sha256'] != gains.sha256:
         raise ValueError('gains {} (sha256 {}) are not the ones of the log (sha256 {})'.format(
             gains.path, gains.sha256, header['gains']['sha256']))
-    return Core(gains, header['config'], header['calibration']['gyro_bias_dps'],
-                header['counts_per_rot'])
+    core = make_core(gains, header['config'], header['counts_per_rot'])
+    core.set_gyro_bias(header['calibration']['gyro_bias_dps'])
+    return core
 
 
 def replay(header, rows, gains, check_gains=True):
     """-> recomputed rows (same shape as rows; time columns copied from the log).
 
-    From tick 0 (Core.start) if the log kept it, else restarted from the first kept row (which
-    is then copied, not recomputed).
+    From tick 0 (start) if the log kept it, else restarted from the first kept row (which is
+    then copied, not recomputed).
     """
     core = core_from_header(header, gains, check_gains)
+    layout = core.rows
     out = np.array(rows, dtype=float)
-    one = logfile.LogBuffer(1)
+    one = logfile.LogBuffer(1, layout)
     overrun = logfile.FLAG_BITS['overrun']
+    flags = layout.col('flags')
+    readings = _reader(layout)
     for i in range(len(rows)):
-        enc, gyro, battery_v = _readings(rows[i])
+        enc, gyro, battery_v = readings(rows[i])
         if battery_v != core.battery_v:
             core.set_battery(battery_v)
         if i > 0:
@@ -44,14 +56,49 @@ def replay(header, rows, gains, check_gains=True):
         else:
             core.restore(rows[0], header['encoder_offsets'])
             continue
-        out[i, 2:] = logfile.to_file_layout(one.mem, core.polarity)[0, 2:]
+        out[i, 2:] = layout.to_file(one.mem)[0, 2:]
         # the overrun flag is the loop's, not the core's
-        out[i, logfile.FLAGS] = int(out[i, logfile.FLAGS]) | (int(rows[i, logfile.FLAGS]) & overrun)
+        out[i, flags] = int(out[i, flags]) | (int(rows[i, flags]) & overrun)
     return out
 
 
-def _readings(r):
-    """A log row's raw readings as the device gave them (ints) and its battery voltage."""
-    r = r.tolist()
-    e, g = logfile.ENC, logfile.GYRO
-    return (tuple(int(v) for v in r[e:e + 4]), (int(r[g]), int(r[g + 1])), r[logfile.BATTERY])
+def _reader(layout):
+    """row -> (the raw readings as the device gave them (ints), the battery voltage)."""
+    e = [layout.col(c) for c in ('enc_r', 'enc_l', 'enc_2', 'enc_3')]
+    g = [layout.col(c) for c in ('gyro_angle', 'gyro_rate')]
+    b = layout.col('battery_v')
+
+    def read(r):
+        r = r.tolist()
+        return (tuple(int(r[i]) for i in e), (int(r[g[0]]), int(r[g[1]])), r[b])
+    return read
+
+
+def signals(header, rows, gains):
+    """The estimates and inputs of a log's rows, SI: {'x_hat': n x 10, 'w_hat': n x 5 (V),
+    'u': the applied inputs (n x 5, V), 'u_cmd': the law's output before rounding and
+    saturation (n x 5, V)}, for either core."""
+    names = [c['name'] for c in header['columns']]
+    col = names.index
+    pol = [header['config']['polarity'][m] for m in ('right_wheel', 'left_wheel', 'joint2', 'joint3')]
+    n = len(rows)
+    u = np.zeros((n, 5))
+    bat = rows[:, col('battery_v')]
+    for k, name in enumerate(('duty_r', 'duty_l', 'duty_2', 'duty_3')):
+        u[:, ACTUATED_INPUTS[k]] = pol[k] * rows[:, col(name)] * bat / 100.0
+    if header.get('estimator', 'detector') == 'detector':
+        block = lambda first, width: rows[:, col(first):col(first) + width]
+        return {'x_hat': block('xt_d_r', 10), 'w_hat': block('w_r', 5), 'u': u, 'u_cmd': block('u_cmd_r', 5)}
+    kal = gains.kalman
+    xi = np.column_stack([rows[:, col('xi_' + s)] for s in kal.state_names])
+    x = xi.copy()
+    cpr = header['counts_per_rot']
+    zeros = header.get('encoder_offsets') or [0, 0, 0, 0]
+    for i, name in ((0, 'enc_r'), (1, 'enc_l')):
+        x[:, i] += kal.wheel_radius_m * pol[i] * 2.0 * math.pi / cpr[i] * (rows[:, col(name)] - zeros[i])
+    w_hat = np.zeros((n, 5))
+    for j, i in enumerate(kal.disturbance_inputs):
+        w_hat[:, ACTUATED_INPUTS[i]] = x[:, 10 + j]
+    u_cmd = np.zeros((n, 5))
+    u_cmd[:, ACTUATED_INPUTS] = -x.dot(kal.K.T)
+    return {'x_hat': x[:, :10], 'w_hat': w_hat, 'u': u, 'u_cmd': u_cmd, 'gyro_bias': x[:, -1]}

@@ -11,8 +11,7 @@ import numpy as np
 import tipbot_fw
 from tipbot_fw import logfile
 from tipbot_fw.calibration import calibrate_gyro
-from tipbot_fw.config import motor_polarity
-from tipbot_fw.core import Core
+from tipbot_fw.core import make_core
 from tipbot_fw.loop import ControlLoop
 from tipbot_fw.console import say
 from tipbot_fw.safety import EXIT_ERROR, EXIT_OK, DeviceFailure, LowBattery, run_guarded
@@ -48,10 +47,12 @@ def run_session(devices, gains, config, clock, log_path=None, duration_s=None,
         realtime_priority = config['realtime_priority']
     header = base_header(gains, config, duration_s)
     header['counts_per_rot'] = list(devices.counts_per_rot)
-    log = logfile.LogBuffer(_log_rows(config, gains.ts_s, duration_s))
-    run = {}    # what body() got to build: the core and the loop
+    header['estimator'] = config['estimator']
+    run = {}    # what body() got to build: the core, its log buffer and the loop
 
     def body():
+        core = run['core'] = make_core(gains, config, devices.counts_per_rot)
+        log = run['log'] = logfile.LogBuffer(_log_rows(config, gains.ts_s, duration_s), core.rows)
         lim = config['limits']
         try:
             bv = devices.read_battery_v()
@@ -63,8 +64,8 @@ def run_session(devices, gains, config, clock, log_path=None, duration_s=None,
                 bv, lim['min_battery_v']))
         cal = calibrate_gyro(devices, clock, gains.ts_s, config['gyro_calibration'])
         header['calibration'] = cal.as_dict()
-        run['core'] = Core(gains, config, cal.gyro_bias_dps, devices.counts_per_rot)
-        run['loop'] = ControlLoop(devices, run['core'], clock, log, gains.ts_s, bv,
+        core.set_gyro_bias(cal.gyro_bias_dps)
+        run['loop'] = ControlLoop(devices, core, clock, log, gains.ts_s, bv,
                                   battery_period_s=config['battery_period_s'],
                                   max_consecutive_overruns=lim['max_consecutive_overruns'],
                                   duration_s=duration_s, realtime_priority=realtime_priority)
@@ -76,21 +77,24 @@ def run_session(devices, gains, config, clock, log_path=None, duration_s=None,
         header['exit_code'] = code
         header['stop_wall_time_s'] = time.time()
         core = run.get('core')
+        log = run.get('log')
         if core is not None and core.x0 is not None:
-            header['encoder_offsets'] = list(core.chain.offsets)
-            header['x_tilde_0'] = core.x0
+            header.update(core.header())
         if 'loop' in run:
             header['loop'] = run['loop'].stats.as_dict()
-        header['first_tick'] = log.first_tick()
-        header['ticks'] = log.count
+        header['first_tick'] = log.first_tick() if log else 0
+        header['ticks'] = log.count if log else 0
         if log_path:
             try:
-                logfile.write_log(log_path, header, log.file_blocks(motor_polarity(config)), log.kept())
+                if log is None:     # stopped before its core existed: the header alone
+                    logfile.write_log(log_path, header, np.zeros((0, 0)), columns=[])
+                else:
+                    logfile.write_log(log_path, header, log.file_blocks(), log.kept(), columns=core.rows.columns)
             except Exception as e:   # the motors are stopped: report, never raise
                 say('could not write the log {}: {!r}'.format(log_path, e))
                 if code == EXIT_OK:
                     code = header['exit_code'] = EXIT_ERROR
-        say('stopped: {} (exit {}, {} ticks)'.format(msg, code, log.count))
+        say('stopped: {} (exit {}, {} ticks)'.format(msg, code, header['ticks']))
         return code, header
 
     return run_guarded(body, devices.stop_all, finish, say)

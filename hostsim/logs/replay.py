@@ -4,14 +4,15 @@
     (also: make replay LOG=... [GAINS=...])
 
 The logged raw readings (encoder counts, gyro angle and rate, battery voltage) go through
-tipbot_fw.replay, i.e. the very tipbot_fw.core.Core the robot ran, and what comes out is
-compared with what the robot logged:
+tipbot_fw.replay, i.e. the very core the robot ran (tipbot_fw.core: the Kalman filter, or the
+paper's detector), and what comes out is compared with what the robot logged:
 
 * with the gains the robot ran (found by the sha256 the log records: --logged-gains, then
   --gains, the log's directory (`make logs` fetches the brick's gains.json there as
-  gains-<sha256>.json), the path in the log, gains/*.json), the replayed signal chain output y,
-  estimates x~, disturbance estimates w^, inputs u and duties must equal the logged ones:
-  "replays exactly" when the largest difference is <= --tol (1e-9);
+  gains-<sha256>.json), the path in the log, gains/*.json), the replayed state (the Kalman
+  filter's carried state xi, or the detector's y, x~, w^), duties and flags must equal the
+  logged ones: "replays exactly" when the largest difference is <= --tol (1e-9; the Kalman
+  core's integer arithmetic replays bit for bit, difference 0);
 * with other gains (--gains FILE whose hash differs), the same readings show what those gains
   would have commanded (their own detector fed their own inputs; the readings stay those of
   the logged run, so this is open loop: how the robot would then have moved is a question for
@@ -34,7 +35,9 @@ import tipbot_fw
 from tipbot_fw import logfile
 from tipbot_fw import replay as fw_replay
 from tipbot_fw.config import ConfigError, config_from_overrides
+from tipbot_fw.gains import ACTUATED_INPUTS
 from tipbot_fw.gains import GainsError, load_gains
+from tipbot_fw.kalman import KalmanRows
 
 from hostsim.errors import TipbotError
 from hostsim.logs import read_log
@@ -43,7 +46,9 @@ from hostsim.paths import GAINS_DIR, out_dir
 DEFAULT_OUT = out_dir("replay")
 DEFAULT_TOL = 1e-9
 # Header fields a replay needs (docs/log-format.md); a log without them is from another version.
-REQUIRED_HEADER = ("gains", "config", "calibration", "counts_per_rot", "first_tick", "ts_s")
+REQUIRED_HEADER = ("gains", "config", "calibration", "counts_per_rot", "first_tick", "ts_s", "estimator")
+# The gains schema this firmware's cores read; a log recorded with another cannot be replayed here.
+from tipbot_fw.gains import SCHEMA_VERSION as GAINS_SCHEMA  # noqa: E402
 
 
 class ReplayError(TipbotError):
@@ -61,9 +66,17 @@ def load_log(path):
         raise ReplayError("%s: a log of kind %r, not a balance run: analyse it with `python -m hostsim %s`"
                           % (path, header["kind"], header["kind"]))
     written_by = header.get("versions", {}).get("tipbot_fw", "an unknown version")
-    if names != list(logfile.COLUMN_NAMES):
-        extra = sorted(set(names) - set(logfile.COLUMN_NAMES))
-        missing = sorted(set(logfile.COLUMN_NAMES) - set(names))
+    schema = header.get("gains", {}).get("schema_version") if isinstance(header.get("gains"), dict) else None
+    if schema != GAINS_SCHEMA:
+        raise ReplayError(
+            "%s: a log of tipbot_fw %s, recorded with gains of schema %s (its control core, the paper's "
+            "detector before the Kalman filter, read schema-1 gains): this tipbot_fw %s replays logs of "
+            "schema-%d gains only; replay it with the tipbot version that wrote it (git history, tag of "
+            "tipbot_fw %s)" % (path, written_by, schema, tipbot_fw.__version__, GAINS_SCHEMA, written_by))
+    expected = expected_columns(header)
+    if names != expected:
+        extra = sorted(set(names) - set(expected))
+        missing = sorted(set(expected) - set(names))
         detail = (["unknown: " + ", ".join(extra[:6])] if extra else []) + \
                  (["missing: " + ", ".join(missing[:6])] if missing else [])
         raise ReplayError(
@@ -94,6 +107,16 @@ def load_log(path):
         raise ReplayError("%s: the log has no ticks (the run stopped before its control loop: %s)"
                           % (path, header.get("stop_message", "see its header")))
     return header, rows, notes
+
+
+def expected_columns(header):
+    """The body columns of a run log of this firmware for the header's estimator."""
+    if header.get("estimator") == "detector":
+        return list(logfile.COLUMN_NAMES)
+    names, units = header.get("state_names"), header.get("state_units")
+    if not isinstance(names, list) or not isinstance(units, list):
+        return []
+    return [c[0] for c in KalmanRows.columns_for(names, units)]
 
 
 def _leaves(doc, prefix=""):
@@ -152,13 +175,12 @@ def _load_gains(path):
 
 
 # ------------------------------------------------------------------------------ replay
-def groups():
-    """(label, column indices) of what the replay recomputes and compares."""
-    names = logfile.COLUMN_NAMES
-
+def groups(names):
+    """(label, column indices) of what the replay recomputes and compares, for a log's columns."""
     def idx(pred):
         return [i for i, n in enumerate(names) if pred(n)]
     out = [
+        ("filter state xi", idx(lambda n: n.startswith("xi_"))),
         ("signal chain y", idx(lambda n: n.startswith("y_"))),
         ("estimates x~", idx(lambda n: n.startswith("xt_"))),
         ("disturbance w^", idx(lambda n: n.startswith("w_"))),
@@ -206,12 +228,15 @@ class Report(object):
         self.header = None
         self.rows = None
         self.logged_gains_path = None
+        self.logged_gains = None
+        self.names = None
         self.replayed = None        # rows replayed with the logged gains (None if not found)
         self.diffs = []             # [(label, max |replayed - logged|)]
         self.max_diff = None
         self.exact = None
         self.other_gains_path = None
         self.other = None           # rows replayed with the other gains
+        self.other_gains = None
         self.other_u_diff = None    # {input: (max abs, rms)} of u_other - u_logged
         self.other_sat = None       # fraction of ticks with a saturated input
         self.plots = []
@@ -224,6 +249,7 @@ def replay_log(log_path, gains_path=None, logged_gains_path=None, tol=DEFAULT_TO
     r.log_path = log_path
     header, rows, r.notes = load_log(log_path)
     r.header, r.rows = header, rows
+    r.names = [c["name"] for c in header["columns"]]
     if logged_gains_path and not os.path.isfile(logged_gains_path):
         raise ReplayError("--logged-gains %s: no such file" % logged_gains_path)
     if logged_gains_path and _sha256(logged_gains_path) != header["gains"]["sha256"]:
@@ -239,9 +265,9 @@ def replay_log(log_path, gains_path=None, logged_gains_path=None, tol=DEFAULT_TO
             other = gains_path
     r.logged_gains_path = logged_gains_path or find_logged_gains(log_path, header)
     if r.logged_gains_path:
-        g = _load_gains(r.logged_gains_path)
+        g = r.logged_gains = _load_gains(r.logged_gains_path)
         r.replayed = replay_rows(header, rows, g)
-        r.diffs = [(label, max_abs_diff(r.replayed, rows, cols)) for label, cols in groups()]
+        r.diffs = [(label, max_abs_diff(r.replayed, rows, cols)) for label, cols in groups(r.names)]
         r.max_diff = max(d for _, d in r.diffs)
         r.exact = r.max_diff <= tol
     elif other is None:
@@ -261,13 +287,13 @@ def replay_log(log_path, gains_path=None, logged_gains_path=None, tol=DEFAULT_TO
                               % (other, g.ts_s, header["ts_s"]))
         r.other_gains_path = other
         r.other = replay_rows(header, rows, g, as_logged=False)
+        r.other_gains = g
         r.other_u_diff = {}
-        for name in logfile.ACTUATED_NAMES:
-            c = logfile.col("u_" + name)
-            d = r.other[:, c] - rows[:, c]
+        mine, theirs = fw_replay.signals(header, rows, r.logged_gains or g), fw_replay.signals(header, r.other, g)
+        for name, j in zip(logfile.ACTUATED_NAMES, ACTUATED_INPUTS):
+            d = theirs["u"][:, j] - mine["u"][:, j]
             r.other_u_diff[name] = (float(np.max(np.abs(d))), float(np.sqrt(np.mean(d * d))))
-        sat = sum(logfile.FLAG_BITS[k] for k in ("sat_r", "sat_l", "sat_th2", "sat_th3"))
-        r.other_sat = float(np.mean((r.other[:, logfile.FLAGS].astype(int) & sat) != 0))
+        r.other_sat = _sat_fraction(r.other, r.names)
     return r
 
 
@@ -295,7 +321,7 @@ def describe(r, tol=DEFAULT_TOL):
             worst = max(r.diffs, key=lambda x: x[1])
             first = _first_bad_tick(r, tol)
             lines.append("  DIFFERS from the log: %s by up to %.3g (> %g), first at row %d (t = %.3f s)"
-                         % (worst[0], worst[1], tol, first, r.rows[first, logfile.TIME]))
+                         % (worst[0], worst[1], tol, first, r.rows[first, r.names.index("time_s")]))
     for note in r.notes:
         lines.append("  " + note)
     if r.other is not None:
@@ -303,19 +329,18 @@ def describe(r, tol=DEFAULT_TOL):
         lines.append("  inputs they would have commanded vs the logged ones, max |diff| (rms): "
                      + ", ".join("u_%s %.3g V (%.3g)" % (n, m, s) for n, (m, s) in r.other_u_diff.items()))
         lines.append("  ticks with a saturated input: %.1f %% (logged run: %.1f %%)"
-                     % (100 * r.other_sat, 100 * _sat_fraction(r.rows)))
+                     % (100 * r.other_sat, 100 * _sat_fraction(r.rows, r.names)))
     for p in r.plots:
         lines.append("plot %s" % p)
     return "\n".join(lines)
 
 
-def _sat_fraction(rows):
-    sat = sum(logfile.FLAG_BITS[k] for k in ("sat_r", "sat_l", "sat_th2", "sat_th3"))
-    return float(np.mean((rows[:, logfile.FLAGS].astype(int) & sat) != 0))
+def _sat_fraction(rows, names):
+    return float(np.mean((rows[:, names.index("flags")].astype(int) & logfile.SATURATION_BITS) != 0))
 
 
 def _first_bad_tick(r, tol):
-    cols = [c for _, cs in groups() for c in cs]
+    cols = [c for _, cs in groups(r.names) for c in cs]
     d = np.abs(r.replayed[:, cols] - r.rows[:, cols])
     bad = np.nonzero(np.any(~(d <= tol), axis=1))[0]
     return int(bad[0]) if len(bad) else 0
@@ -329,29 +354,30 @@ def plot(r, out_dir):
 
     os.makedirs(out_dir, exist_ok=True)
     stem = os.path.splitext(os.path.basename(r.log_path))[0]
-    t = r.rows[:, logfile.TIME]
+    t = r.rows[:, r.names.index("time_s")]
+    gains = r.logged_gains or r.other_gains
     series = []
     if r.other is not None:
-        series.append(("replayed with %s" % os.path.basename(r.other_gains_path), r.other,
-                       dict(color="tab:blue", lw=1.0)))
-    series.append(("logged", r.rows, dict(color="k", lw=1.6)))
+        series.append(("replayed with %s" % os.path.basename(r.other_gains_path),
+                       fw_replay.signals(r.header, r.other, r.other_gains), dict(color="tab:blue", lw=1.0)))
+    series.append(("logged", fw_replay.signals(r.header, r.rows, gains), dict(color="k", lw=1.6)))
     if r.replayed is not None:
-        series.append(("replayed (logged gains)", r.replayed, dict(color="tab:orange", lw=1.0, ls="--")))
+        series.append(("replayed (logged gains)", fw_replay.signals(r.header, r.replayed, gains),
+                       dict(color="tab:orange", lw=1.0, ls="--")))
     paths = []
-    for what, names, units, ncols in (
-            ("inputs", ["u_" + n for n in logfile.ACTUATED_NAMES], ["V"] * 4, 2),
-            ("estimates", ["xt_" + n for n in logfile.STATE_NAMES], list(logfile.STATE_UNITS), 2)):
-        nrows = (len(names) + ncols - 1) // ncols
+    inputs = [("u", j, "u_" + n, "V") for n, j in zip(logfile.ACTUATED_NAMES, ACTUATED_INPUTS)]
+    states = [("x_hat", i, "x^_" + n, u) for i, (n, u) in enumerate(zip(logfile.STATE_NAMES, logfile.STATE_UNITS))]
+    for what, panels, ncols in (("inputs", inputs, 2), ("estimates", states, 2)):
+        nrows = (len(panels) + ncols - 1) // ncols
         fig, axes = plt.subplots(nrows, ncols, figsize=(11, 2.2 * nrows + 0.8), sharex=True, squeeze=False)
-        for ax, name, unit in zip(axes.flat, names, units):
-            c = logfile.col(name)
-            for label, rows, style in series:
-                ax.plot(t, rows[:, c], label=label, **style)
+        for ax, (key, j, name, unit) in zip(axes.flat, panels):
+            for label, sig, style in series:
+                ax.plot(t, sig[key][:, j], label=label, **style)
             ax.set_ylabel("%s [%s]" % (name, unit))
             ax.grid(True, alpha=0.3)
         for ax in axes[-1]:
             ax.set_xlabel("time since the loop started [s]")
-        for ax in list(axes.flat)[len(names):]:
+        for ax in list(axes.flat)[len(panels):]:
             ax.set_visible(False)
         title = "%s: %s" % (stem, what)
         if r.exact is not None:
