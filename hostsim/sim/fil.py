@@ -41,6 +41,7 @@ from hostsim.sim.scenario import disturbance_at
 from hostsim.world.sensors import SensorModel
 from tipbot_fw import config as fw_config
 from tipbot_fw import logfile
+from tipbot_fw import replay as fw_replay
 from tipbot_fw.clock import VirtualClock
 from tipbot_fw.devices import MemoryDevices
 from tipbot_fw.config import MOTOR_ROLES
@@ -250,7 +251,9 @@ def run_firmware(sc, gains_path=None, gains_doc=None, sysfs=True, log_path=None,
                                        duration_s=sc.duration_s, say=lambda msg: None)
         finally:
             devices.close()
-        rows = logfile.read_log(log_path)[1] if keep_rows and os.path.exists(log_path) else None
+        rows = None
+        if keep_rows and os.path.exists(log_path):
+            header, rows = logfile.read_log(log_path)
     finally:
         if fake is not None:
             fake.close()
@@ -265,7 +268,7 @@ def run_firmware(sc, gains_path=None, gains_doc=None, sysfs=True, log_path=None,
     if fake is not None:
         out["io_per_iteration"] = [fake.io.log[a:b] for a, b in zip(world.io_marks, world.io_marks[1:])]
     if rows is not None:
-        out.update(_firmware_side(rows, d_origin, len(out["t_s"])))
+        out.update(_firmware_side(header, rows, gains, d_origin, len(out["t_s"])))
     return RunResult(d_origin_m=d_origin, exit_code=code, stop_reason=header.get("stop_reason"), header=header,
                      completed=code == 0 and header.get("stop_reason") == "completed", **out)
 
@@ -283,23 +286,15 @@ def _world_side(world):
     return dict(t_s=np.array(world.log_t), x=np.array(world.log_x).reshape(n, 10), u=u, w=w)
 
 
-def _firmware_side(rows, d_origin, n):
-    """The firmware's own view from its log rows (by column name), tick k <-> plant sample k."""
-    rows = rows[:n]
-    names = logfile.COLUMN_NAMES
-
-    def block(first, width):
-        i = names.index(first)
-        return rows[:, i:i + width]
+def _firmware_side(header, rows, gains, d_origin, n):
+    """The firmware's own view from its log (tipbot_fw.replay.signals), tick k <-> plant sample k."""
+    sig = fw_replay.signals(header, rows[:n], gains)
     shift = np.zeros(10)
     shift[:2] = d_origin
-    y = block("y_d_r", 10) + shift
-    xhat = block("xt_d_r", 10) + shift
-    w_hat = block("w_r", 5)
-    u_cmd = block("u_r", 5)
-    u_unsat = block("u_cmd_r", 5)
-    if len(rows) < n:
-        pad = n - len(rows)
-        y, xhat, w_hat, u_cmd, u_unsat = (np.vstack([a, np.full((pad, a.shape[1]), np.nan)])
-                                          for a in (y, xhat, w_hat, u_cmd, u_unsat))
-    return dict(y=y, xhat=xhat, w_hat=w_hat, u_cmd=u_cmd, u_unsat=u_unsat)
+    xhat = sig["x_hat"] + shift
+    w_hat, u_cmd, u_unsat = sig["w_hat"], sig["u"], sig["u_cmd"]
+    if len(xhat) < n:
+        pad = n - len(xhat)
+        xhat, w_hat, u_cmd, u_unsat = (np.vstack([a, np.full((pad, a.shape[1]), np.nan)])
+                                       for a in (xhat, w_hat, u_cmd, u_unsat))
+    return dict(xhat=xhat, w_hat=w_hat, u_cmd=u_cmd, u_unsat=u_unsat)

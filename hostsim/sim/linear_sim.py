@@ -60,6 +60,28 @@ class HostController:
         return self.u
 
 
+class IdealController:
+    """The perfect-measurement reference: u_k = sat(-K x_k - K_w w_k) with the TRUE state and
+    disturbance (no sensor, no estimator, no delay). The firmware's inputs are judged against
+    this run's (metrics rms_u_ratio_to_ideal)."""
+
+    def __init__(self, g, sc, x0):
+        self.g, self.sc, self.k = g, sc, 0
+        self.w_hat = np.zeros(5)
+        self._set(np.asarray(x0, dtype=float))
+
+    def _set(self, x):
+        self.xh = x
+        self.w_hat = np.array(disturbance_at(self.sc, self.k * self.g.ts_s))
+        self.u_unsat = -self.g.K @ x - self.g.K_w @ self.w_hat
+        self.u = _saturate(self.u_unsat, self.g.u_max_v)
+
+    def update(self, x_next):
+        self.k += 1
+        self._set(np.array(x_next, dtype=float))
+        return self.u
+
+
 def truth_linear_model(g, sc, params=None):
     """(A, B) in SI of the plant a linear run simulates.
 
@@ -91,11 +113,11 @@ class _Recorder:
                          w=self.w[:n], w_hat=self.w_hat[:n], completed=completed)
 
 
-def _simulate(g, sc, k_pd, x0, step, fallen):
+def _simulate(g, sc, k_pd, x0, step, fallen, ideal=False):
     n_steps = int(round(sc.duration_s / g.ts_s))
     xhat0 = sc.xhat0_si if sc.xhat0_si is not None else sc.x0_si
     x = np.array(x0, dtype=float)
-    ctl = HostController(g, xhat0, g.C @ x, k_pd)
+    ctl = IdealController(g, sc, x) if ideal else HostController(g, xhat0, g.C @ x, k_pd)
     pending = [np.zeros(5)] * sc.extra_delay_ticks
     rec = _Recorder(n_steps)
     for k in range(n_steps + 1):
@@ -115,11 +137,12 @@ def simulate_linear(g, sc, k_pd=None, params=None):
     return _simulate(g, sc, k_pd, sc.x0_si, lambda x, u, t: a @ x + b @ u, lambda x: False)
 
 
-def simulate_nonlinear(g, sc, k_pd=None, params=None, fall_rad=np.pi / 2):
+def simulate_nonlinear(g, sc, k_pd=None, params=None, fall_rad=np.pi / 2, ideal=False):
     """Run a scenario on the nonlinear plant with ideal measurement -> RunResult (SI).
 
     Stops early (completed=False) when |th1| passes fall_rad: the model means nothing once
-    the robot lies on the floor.
+    the robot lies on the floor. ideal: the IdealController (true state and disturbance)
+    instead of the detector.
     """
     model = RobotModel(sc.plant_variant, scaled_params(sc.param_scale, params))
     to_si = np.diag(state_scale_to_si(model.variant))
@@ -137,4 +160,4 @@ def simulate_nonlinear(g, sc, k_pd=None, params=None, fall_rad=np.pi / 2):
         plant.advance(u, t_end - t)
         return plant.x_si
 
-    return _simulate(g, sc, k_pd, sc.x0_si, step, lambda x: abs(x[2]) > fall_rad)
+    return _simulate(g, sc, k_pd, sc.x0_si, step, lambda x: abs(x[2]) > fall_rad, ideal)

@@ -62,6 +62,10 @@ def compute(run, sc, u_max_v):
         "final_abs_d_m": _f(np.max(np.abs(x[-1, :2] - origin))),
     }
     m["upright"] = bool(m["completed"] and np.all(np.abs(th1) < UPRIGHT_LIMIT_RAD))
+    m["rms_u_v"] = [_f(v) for v in np.sqrt(np.mean(u[:, ACTUATED_INPUTS] ** 2, axis=0))]
+    steady = t >= min(TRANSIENT_S, t[-1])
+    m["rms_th1_after_transient_rad"] = _f(np.sqrt(np.mean(th1[steady] ** 2)))
+    m["oscillation_above_1hz"] = oscillations(t, x, u)
     if run.u_unsat is not None and np.isfinite(run.u_unsat).any():
         uu = run.u_unsat[:, ACTUATED_INPUTS]
         m["peak_abs_u_unsat_v"] = [_f(v) for v in np.nanmax(np.abs(uu), axis=0)]
@@ -85,6 +89,46 @@ def compute(run, sc, u_max_v):
         m["disturbed_peak_abs_u_v"] = [_f(v) for v in udev]
     m.update(_estimation(run, t))
     return m
+
+
+# Oscillation check: the strongest spectral line above OSC_MIN_HZ of each signal after the
+# transient. A limit cycle is a narrow line standing far above the spectrum around it
+# ("prominence": its amplitude over the median amplitude of the band), noise is not.
+OSC_MIN_HZ = 1.0
+OSC_SIGNALS = (("th1", lambda x, u: x[:, 2]), ("th2", lambda x, u: x[:, 3]), ("th3", lambda x, u: x[:, 4]),
+               ("wheel_speed", lambda x, u: 0.5 * (x[:, 5] + x[:, 6])),
+               ("u_r", lambda x, u: u[:, 0]), ("u_l", lambda x, u: u[:, 1]),
+               ("u_th2", lambda x, u: u[:, 3]), ("u_th3", lambda x, u: u[:, 4]))
+
+
+def oscillations(t, x, u):
+    """{signal: {"hz", "amplitude", "prominence"}} of the strongest line above OSC_MIN_HZ."""
+    steady = t >= min(TRANSIENT_S, t[-1])
+    out = {}
+    if steady.sum() < 64:
+        return out
+    dt = float(np.median(np.diff(t)))
+    for name, pick in OSC_SIGNALS:
+        sig = pick(x[steady], u[steady])
+        sig = sig - np.mean(sig)
+        amp = np.abs(np.fft.rfft(sig * np.hanning(len(sig)))) * 4.0 / len(sig)   # Hann: amplitude x 2
+        f = np.fft.rfftfreq(len(sig), dt)
+        band = f > OSC_MIN_HZ
+        if not band.any():
+            continue
+        i = int(np.argmax(np.where(band, amp, -1.0)))
+        floor = float(np.median(amp[band]))
+        out[name] = {"hz": _f(f[i]), "amplitude": _f(amp[i]),
+                     "prominence": _f(amp[i] / floor) if floor > 0 else None}
+    return out
+
+
+def with_ideal(m, ideal):
+    """Adds the ideal (perfect-measurement) run's input RMS to a run's metrics, and the ratio."""
+    out = dict(m)
+    out["ideal_rms_u_v"] = list(ideal["rms_u_v"])
+    out["rms_u_ratio_to_ideal"] = [_f(a / b) if b else None for a, b in zip(m["rms_u_v"], ideal["rms_u_v"])]
+    return out
 
 
 def _estimation(run, t):

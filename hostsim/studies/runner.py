@@ -47,10 +47,19 @@ def _document(path):
         return json.load(f)
 
 
+def ideal_metrics(sc, gs):
+    """Metrics of the perfect-measurement run of the scenario (nonlinear plant, true state and
+    disturbance fed to the law): the reference the firmware's inputs are judged against."""
+    return metrics_mod.compute(simulate_nonlinear(gs, sc, ideal=True), sc, gs.u_max_v)
+
+
 def scenario_metrics(sc, gs, runs):
     out = {}
+    ideal = ideal_metrics(sc, gs) if any(label.startswith("firmware/") for label in runs) else None
     for label, run in runs.items():
         m = metrics_mod.compute(run, sc, gs.u_max_v)
+        if ideal is not None:
+            m = metrics_mod.with_ideal(m, ideal)
         m["wall_s"] = round(run.wall_s, 3)
         m["real_time_factor"] = round(m["duration_s"] / run.wall_s, 2) if run.wall_s > 0 else None
         if run.exit_code is not None:
