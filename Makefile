@@ -93,6 +93,8 @@ replay: venv
 bench: venv
 	$(VPY) -m hostsim bench-sim
 	$(VPY) tools/tick-cost --ticks $(TICKS) -- python3 -m tipbot_fw.bench
+	@echo "the device layer's own cost (5 reads, 4 writes per tick, beside the tick's):"
+	$(VPY) tools/tick-cost --ticks $(TICKS) -- python3 -m tipbot_fw.bench --device-layer
 
 brick:
 	tools/brick-setup

@@ -8,7 +8,8 @@ divided by N, is the cost of one tick including its log row. The fake devices an
 are C-level callables (bench_devices, FrozenClock), so what is counted is the firmware's own
 work; the real device layer's reads and writes come on top (tipbot_fw.ev3io).
 Without --gains it uses the repository's gains/physical.json when there is one, else synthetic
-gains with the structure of the real ones.
+gains with the structure of the real ones. `--device-layer` instead counts the real device
+layer (tipbot_fw.ev3io: 5 reads, 4 writes per tick) on plain files (FileDevices).
 
 brick_bench() is the on-robot benchmark used by `python3 -m tipbot_fw bench`: the time of the
 reads, the compute and the writes of a tick, the whole tick, and a verdict on the period.
@@ -293,16 +294,73 @@ REPO_GAINS = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file
                           'gains', 'physical.json')
 
 
+class FileDevices(object):
+    """tipbot_fw.ev3io.Ev3Devices on plain files laid out as the sysfs attributes it opens, for
+    counting the device layer's own instructions per tick (python-ev3dev2's discovery is
+    skipped: the virtual brick has no ev3dev2, and discovery is not part of a tick)."""
+
+    def __init__(self, root):
+        from tipbot_fw.config import defaults as config_defaults
+        from tipbot_fw.ev3io import BATTERY_PATH, Ev3Devices, SysfsDevices, device_spec
+        config = config_defaults()
+        motors, gyro, stop_action = device_spec(config)
+        paths = {}
+        for port, value in [(p, b'1234\n') for p, _ in motors] + [(gyro[0], b'\x05\x00\xfd\xff')]:
+            d = os.path.join(root, port)
+            os.makedirs(d)
+            paths[port] = d
+            for name in ('position', 'duty_cycle_sp', 'command', 'stop_action', 'polarity', 'mode'):
+                with open(os.path.join(d, name), 'wb') as f:
+                    f.write(value if name == 'position' else b'')
+            with open(os.path.join(d, 'bin_data'), 'wb') as f:
+                f.write(value)
+        os.makedirs(os.path.dirname(os.path.join(root, BATTERY_PATH)))
+        with open(os.path.join(root, BATTERY_PATH), 'wb') as f:
+            f.write(b'8000000\n')
+        dev = Ev3Devices.__new__(Ev3Devices)
+        SysfsDevices.__init__(dev)
+        dev._duty_fds, dev._cmd_fds, dev._last = (), (), [0, 0, 0, 0]
+        dev._motor_ports = tuple(p for p, _ in motors)
+        dev._gyro_port = gyro[0]
+        dev.paths, dev.counts_per_rot = paths, (360, 360, 360, 360)
+        dev._open(root)
+        dev._set_up(stop_action)
+        self.devices = dev
+
+
+def run_device_layer(n_ticks):
+    """n_ticks of one read_raw and one write_duties that changes all four duties (the worst
+    case) on FileDevices: the device layer's cost per tick, beside the tick's own."""
+    import tempfile
+    root = tempfile.mkdtemp(prefix='tipbot-bench-')
+    dev = FileDevices(root).devices
+    read, write = dev.read_raw, dev.write_duties
+    a, b = _PATTERNS
+    try:
+        for _ in range(n_ticks // 2):
+            read()
+            write(a)
+            read()
+            write(b)
+    finally:
+        dev.close()
+
+
 def main(argv=None):
     args = sys.argv[1:] if argv is None else argv
     n_ticks = None
     gains_path = None
-    usage = 'usage: python3 -m tipbot_fw.bench --ticks N [--gains FILE]'
+    device_layer = False
+    usage = 'usage: python3 -m tipbot_fw.bench --ticks N [--gains FILE] [--device-layer]'
     while args:
         if args[0] == '--ticks' and len(args) > 1 and args[1].isdigit():
             n_ticks = int(args[1])
         elif args[0] == '--gains' and len(args) > 1:
             gains_path = args[1]
+        elif args[0] == '--device-layer':
+            device_layer = True
+            args = args[1:]
+            continue
         else:
             sys.stderr.write(usage + '\n')
             return 2
@@ -310,6 +368,10 @@ def main(argv=None):
     if n_ticks is None:
         sys.stderr.write(usage + '\n')
         return 2
+    if device_layer:
+        run_device_layer(n_ticks)
+        sys.stdout.write('device layer: {} ticks of 5 reads and 4 writes on files\n'.format(n_ticks))
+        return 0
     if gains_path is None and os.path.isfile(REPO_GAINS):
         gains_path = REPO_GAINS
     gains = load_gains(gains_path) if gains_path else None

@@ -24,15 +24,15 @@ One matrix holds both (the gains file's `kalman.law.M`, rows [u_k, xi_k], column
 [u_{k-1}, xi_{k-1}, dphi_r, dphi_l, m_k]). Every bounded quantity then has a small fixed-point
 range, which is what lets the tick run in int64 (tipbot_fw.fixedpoint): per tick
 
-    v    = [duty_{k-1} (4) | xi_{k-1} (n) | dcount_r, dcount_l, count_r, count_l,
-            count_2 - zero_2, count_3 - zero_3, gyro_rate (raw ints) | 1]
+    v    = [duty_{k-1} (4) | xi_{k-1} (n) | dcount_r, dcount_l, the four counts from their
+            zeros, gyro_rate (raw ints) | 1]
     acc  = M_int v                 one int64 numpy product
     v[:4+n] = acc >> shifts        the duties (rounded) and xi_k, in place
 
 M_int folds in everything that is constant between battery readings: radians per count and
 polarity of each encoder, the gyro's sign and deg -> rad, volts per duty of the applied input,
-duties per volt and polarity of the commands, the encoder zeros and the start pose (the
-constant column), the rounding constants. It is rebuilt when the battery reading changes
+duties per volt and polarity of the commands, the start pose (the constant column), the
+rounding constants. It is rebuilt when the battery reading changes
 (outside the tick). The duties come out as rounded integers; saturation clips them.
 """
 import math
@@ -50,14 +50,16 @@ JOINT_LIMIT = logfile.FLAG_BITS['joint_limit']
 STOP_FLAGS = FALL | JOINT_LIMIT
 N_U = 4
 N_MEAS = 5
-N_IN = 7                 # dcount_r, dcount_l, count_r, count_l, rel count_2, rel count_3, gyro rate
+N_IN = 7                 # the counts' changes dcount_r, dcount_l; the counts from their zeros
+                         # count_r, count_l, count_2, count_3; the gyro's raw rate
 # Bounds of the integer inputs (fixed-point ranges): duties; a wheel's count change in one tick
 # (a motor turns at most ~30 rad/s, 0.15 rad = 9 counts per 5 ms: more is a failed read);
-# a wheel's absolute count (sysfs `position` is an int32); a joint's count from its zero (the
-# joint limit stops the run first, checked before the product); the gyro's raw int16 rate.
+# a wheel's count from its zero (2^24 counts, 46,600 turns, 10 km: more than a charge of the
+# battery at full speed); a joint's count from its zero (the joint limit stops the run first,
+# checked before the product); the gyro's raw int16 rate.
 DUTY_BOUND = 100
 WHEEL_STEP_BOUND = 2 ** 10
-WHEEL_COUNT_BOUND = 2 ** 31
+WHEEL_COUNT_BOUND = 2 ** 24
 JOINT_COUNT_BOUND = 2 ** 10
 GYRO_BOUND = 2 ** 15
 INPUT_BOUNDS = (WHEEL_STEP_BOUND,) * 2 + (WHEEL_COUNT_BOUND,) * 2 + (JOINT_COUNT_BOUND,) * 2 + (GYRO_BOUND,)
@@ -131,7 +133,7 @@ class KalmanRows(object):
         n = core.n
         self.mem_names = (['t_start', 't_written', 'battery_v', 'flags', 'gyro_angle']
                           + ['duty_r', 'duty_l', 'duty_2', 'duty_3'] + ['xi_' + s for s in core.state_names]
-                          + ['dcount_r', 'dcount_l', 'enc_r', 'enc_l', 'rel_2', 'rel_3', 'gyro_rate'])
+                          + ['dcount_r', 'dcount_l', 'rel_r', 'rel_l', 'rel_2', 'rel_3', 'gyro_rate'])
         self.row_bytes = 8 * len(self.mem_names)
         self.flags_index = 3
         self.ints_start = 5
@@ -157,10 +159,8 @@ class KalmanRows(object):
         out[:, 0] = mem[:, 0] - t0
         out[:, 1] = mem[:, 1] - mem[:, 0]
         zeros = self.core.offsets or (0, 0, 0, 0)
-        out[:, 2] = ints[:, 4 + n + 2]
-        out[:, 3] = ints[:, 4 + n + 3]
-        out[:, 4] = ints[:, 4 + n + 4] + zeros[2]
-        out[:, 5] = ints[:, 4 + n + 5] + zeros[3]
+        for j in range(4):
+            out[:, 2 + j] = ints[:, 4 + n + 2 + j] + zeros[j]
         out[:, 6] = mem[:, 4]
         out[:, 7] = ints[:, 4 + n + 6]
         out[:, 8] = mem[:, 2]
@@ -210,9 +210,8 @@ class KalmanCore(object):
         v_bounds = [DUTY_BOUND] * N_U + [2.0 ** fx.STATE_BITS] * n + list(INPUT_BOUNDS)
         m_abs = np.abs(kal.law_M) * np.array(self._col_factor(hi, abs_only=True))[None, :]
         m_abs = m_abs * np.array([100.0 / lo] * N_U + [1.0] * n)[:, None]
-        # the constant column: the start pose and the zeros of the wheel counts (|zero| < 2^31)
-        const_bound = np.abs(kal.law_M[:, N_U + n + 2:N_U + n + 4]).dot(np.abs(meas[2:4])) * 2.0 ** 31 \
-            + np.abs(kal.law_M[:, N_U + n + 4:N_U + n + 6]).dot([3.2, 3.2])
+        # the constant column: the start pose of the joints (|pose| <= 3.2 rad)
+        const_bound = np.abs(kal.law_M[:, N_U + n + 4:N_U + n + 6]).dot([3.2, 3.2])
         const_bound = const_bound * np.array([100.0 / lo] * N_U + [1.0] * n)
         rows = np.hstack([m_abs, const_bound[:, None]])
         self.row_exp = fx.row_exponents(rows.tolist(), v_bounds + [1.0])
@@ -295,19 +294,14 @@ class KalmanCore(object):
                 worst, fx.ACC_BITS))
 
     def _constant_column(self, rowf):
-        """Start pose of the joints (float, in a fixed order), the wheel counts' zeros (exact
-        integer arithmetic on M_int) and the rounding constants."""
+        """Start pose of the joints (float, in a fixed order) and the rounding constants."""
         law = self.kal.law_M
         n = self.n
         j2, j3 = N_U + n + 2 + 2, N_U + n + 2 + 3
-        w_r, w_l = N_U + n + 2, N_U + n + 3
-        zeros = self.offsets or (0, 0, 0, 0)
         out = []
         for i in range(N_U + n):
             c = law[i, j2] * self.pose[1] + law[i, j3] * self.pose[2]
-            k = fx.round_half_up(c * rowf[i], self.row_exp[i])
-            k -= int(self.M[i, w_r]) * zeros[0] + int(self.M[i, w_l]) * zeros[1]
-            out.append(k + (1 << (self.shift_list[i] - 1)))
+            out.append(fx.round_half_up(c * rowf[i], self.row_exp[i]) + (1 << (self.shift_list[i] - 1)))
         return np.array(out, dtype=np.int64)
 
     def initial_state(self):
@@ -321,8 +315,7 @@ class KalmanCore(object):
         """First tick: the counts are the encoder zeros; xi_0 = x^_0 (the readings are zero
         relative to themselves), u_0 = -K x^_0 rounded to duties (Python floats, fixed order)."""
         self.offsets = (enc[0], enc[1], enc[2], enc[3])
-        self.prev = (enc[0], enc[1])
-        self.M[:, self.n_v - 1] = self._constant_column(self.scale_row_f)
+        self.prev = (0, 0)
         x0 = [float(v) for v in self.initial_state()]
         self.x0 = x0
         k = self.kal.K
@@ -334,26 +327,28 @@ class KalmanCore(object):
                 u -= k[i, j] * x0[j]
             duties.append(int(math.floor(u * self.scale_row_f[i] + 0.5)))
         self.v[N_U:N_U + self.n] = z
-        _IN.pack_into(self.v_bytes, self._in_off, 0, 0, enc[0], enc[1], 0, 0, gyro[1])
+        _IN.pack_into(self.v_bytes, self._in_off, 0, 0, 0, 0, 0, 0, gyro[1])
         self._check_range()
         return self._finish(duties, z[2], gyro[0], buf, offset, True)
 
     def step(self, enc, gyro, buf, offset):
         """Every later tick: the module docstring's product, in integers."""
         e0, e1, e2, e3 = enc
-        p0, p1 = self.prev
-        self.prev = (e0, e1)
         z0, z1, z2, z3 = self.offsets
-        d0 = e0 - p0
-        d1 = e1 - p1
+        r0 = e0 - z0
+        r1 = e1 - z1
         r2 = e2 - z2
         r3 = e3 - z3
+        p0, p1 = self.prev
+        self.prev = (r0, r1)
+        d0 = r0 - p0
+        d1 = r1 - p1
         lim = WHEEL_STEP_BOUND
         if not (-lim < d0 < lim and -lim < d1 < lim):
             raise DeviceFailure('a wheel encoder jumped by {} counts in one tick: a failed read'.format(
                 d0 if not -lim < d0 < lim else d1))
         j2lo, j2hi, j3lo, j3hi = self.joint_bounds
-        _IN.pack_into(self.v_bytes, self._in_off, d0, d1, e0, e1, r2, r3, gyro[1])
+        _IN.pack_into(self.v_bytes, self._in_off, d0, d1, r0, r1, r2, r3, gyro[1])
         if not (j2lo <= r2 <= j2hi and j3lo <= r3 <= j3hi):
             # stop before the product: beyond the limits the fixed-point range is not assured
             return self._row(JOINT_LIMIT, gyro[0], buf, offset)
@@ -402,7 +397,7 @@ class KalmanCore(object):
         xi = [int(v) * l for v, l in zip(self.v[N_U:N_U + n], self.state_lsb)]
         rw = self.kal.wheel_radius_m
         for i in (0, 1):
-            xi[i] += rw * self.rad_per_count[i] * (int(self.v[N_U + n + 2 + i]) - self.offsets[i])
+            xi[i] += rw * self.rad_per_count[i] * int(self.v[N_U + n + 2 + i])
         return xi
 
     @property
@@ -429,12 +424,11 @@ class KalmanCore(object):
         """State as right after the tick of a file row (a ring-buffer log's first kept row)."""
         r = self.rows
         self.offsets = tuple(int(v) for v in encoder_offsets)
-        self.M[:, self.n_v - 1] = self._constant_column(self.scale_row_f)
-        enc = [int(file_row[r.col(c)]) for c in ('enc_r', 'enc_l', 'enc_2', 'enc_3')]
-        self.prev = (enc[0], enc[1])
+        rel = [int(file_row[r.col(c)]) - z for c, z in zip(('enc_r', 'enc_l', 'enc_2', 'enc_3'), self.offsets)]
+        self.prev = (rel[0], rel[1])
         duties = [int(file_row[r.col(c)]) for c in ('duty_r', 'duty_l', 'duty_2', 'duty_3')]
         xi = [int(round(float(file_row[r.col('xi_' + s)]) * 2.0 ** e)) for s, e in zip(self.state_names, self.q)]
         _DUTIES.pack_into(self.v_bytes, 0, *duties)
         self.v[N_U:N_U + self.n] = xi
-        _IN.pack_into(self.v_bytes, self._in_off, 0, 0, enc[0], enc[1], enc[2] - self.offsets[2],
-                      enc[3] - self.offsets[3], int(file_row[r.col('gyro_rate')]))
+        _IN.pack_into(self.v_bytes, self._in_off, 0, 0, rel[0], rel[1], rel[2], rel[3],
+                      int(file_row[r.col('gyro_rate')]))

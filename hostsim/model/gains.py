@@ -48,9 +48,7 @@ class GainDesign:
     Q: np.ndarray
     R: np.ndarray
     r_wheel_scale: float             # the wheel inputs' weight multiplier (physical variant)
-    robust_to_models: bool           # whether the loop holds every plant of kalman.UncertaintySet
-    robust_worst_radius: float
-    robust_worst_case: tuple         # (model, delay_s, input gain) of the worst radius
+    margins: kalman.Margins          # of the loop over kalman.UncertaintySet (robust or not)
     K: np.ndarray
     P: np.ndarray                    # the Riccati solution
     K_w: np.ndarray
@@ -81,8 +79,7 @@ def design_gains(variant, params, ts_s=DEFAULT_TS_S, detector_poles=None, noise=
     chosen = robust_design(variant, params, ts_s, a, b, q, r, e_mat, noise)
     l1, l2, g_w, det_eig = design.robust_detector(a, b, c, e_mat, ACTUATED_INPUTS, detector_poles)
     return GainDesign(variant=variant, model=model, ts_s=float(ts_s), A=a, B=b, C=c, E=e_mat, Q=q, R=chosen["R"],
-                      r_wheel_scale=chosen["r_wheel_scale"], robust_to_models=chosen["robust"],
-                      robust_worst_radius=chosen["worst"], robust_worst_case=chosen["where"],
+                      r_wheel_scale=chosen["r_wheel_scale"], margins=chosen["margins"],
                       K=chosen["K"], P=chosen["P"], K_w=chosen["K_w"], L1=l1, L2=l2, G_w=g_w,
                       closed_loop_eigenvalues=chosen["eig"], detector_eigenvalues=det_eig,
                       structure=design.structure_report(a, b, c, ACTUATED_INPUTS), kalman=chosen["kalman"],
@@ -93,8 +90,8 @@ def robust_design(variant, params, ts_s, a, b, q, r, e_mat, noise=None):
     """The LQR and the Kalman filter, made robust together: the first wheel input weight of
     design.WHEEL_WEIGHT_LADDER (physical variant; the paper's weights for the paper variant)
     and input-noise scale of kalman.INPUT_NOISE_LADDER whose loop (plant, filter, law) has a
-    spectral radius <= kalman.ROBUST_RADIUS_MAX on every plant of kalman.UncertaintySet. When
-    none does, the plain design (both factors 1) with robust False. -> dict."""
+    modes all decay and oscillate with enough damping on every plant of kalman.UncertaintySet
+    (kalman.Margins.robust). When none does, the plain design (both factors 1). -> dict."""
     uncertainty = kalman.UncertaintySet(params, ts_s)
     t = state_scale_to_si(variant)
     ti = np.linalg.inv(t)
@@ -110,12 +107,11 @@ def robust_design(variant, params, ts_s, a, b, q, r, e_mat, noise=None):
         for scale in kalman.INPUT_NOISE_LADDER:
             ns = dataclasses.replace(base, input_noise_scale=scale)
             kd = kalman.design_kalman(t @ a @ ti, t @ b, k @ ti, k_w, params["rw_m"], ts_s, ns)
-            worst, where = uncertainty.worst(kd)
-            found = dict(r_wheel_scale=factor, R=r_try, K=k, P=p, eig=eig, K_w=k_w, kalman=kd, worst=worst,
-                         where=where, robust=worst <= kalman.ROBUST_RADIUS_MAX)
+            margins = uncertainty.margins(kd)
+            found = dict(r_wheel_scale=factor, R=r_try, K=k, P=p, eig=eig, K_w=k_w, kalman=kd, margins=margins)
             if plain is None:
                 plain = found
-            if found["robust"]:
+            if margins.robust:
                 return found
     return plain
 
@@ -163,14 +159,16 @@ def to_document(g):
         "actuated_inputs": list(ACTUATED_INPUTS),
         "u_max_v": _num(params["u_max_v"]),
         "r_wheel_scale": _num(g.r_wheel_scale),
-        "robust_to_models": dict(kalman.UncertaintySet.describe(None), stabilized=g.robust_to_models,
-                                 worst_spectral_radius=_num(g.robust_worst_radius),
-                                 worst_case=[g.robust_worst_case[0], _num(g.robust_worst_case[1]),
-                                             _num(g.robust_worst_case[2])],
+        "robust_to_models": dict(kalman.UncertaintySet.describe(), stabilized=g.margins.robust,
+                                 worst_spectral_radius=_num(g.margins.radius),
+                                 worst_radius_at=_rounded(list(g.margins.radius_at)),
+                                 least_damping=_num(g.margins.damping),
+                                 least_damping_at=_rounded(list(g.margins.damping_at)),
                                  input_noise_scale=_num(g.kalman.noise.input_noise_scale),
-                                 what="spectral radius of plant + Kalman filter + law on each model variant, with "
-                                      "the new duties landing each delay into the tick and the motors' gain "
-                                      "scaled; stabilized: every one <= radius_max"),
+                                 what="the loop of plant + Kalman filter + law on each model variant, with the new "
+                                      "duties landing each delay into the tick, the motors' gain scaled, the wheels "
+                                      "of another radius; stabilized: every mode decays (radius <= radius_max) and "
+                                      "every one above damping_above_hz has a damping ratio >= damping_min"),
         "state_feedback_spectral_radius": {k: _num(v) for k, v in sorted(g.state_feedback_radii.items())},
         "closed_loop_spectral_radius": _num(np.max(np.abs(g.closed_loop_eigenvalues))),
         "detector_eigenvalues": [_num(z.real) for z in sorted(g.detector_eigenvalues, key=lambda z: z.real)],
@@ -246,16 +244,20 @@ def summary(g):
 
 
 def robustness_lines(g):
-    u = kalman.UncertaintySet.describe(None)
-    where = "%s model, duties landing %g ms into the tick, motor gain x%g" % (
-        g.robust_worst_case[0], g.robust_worst_case[1] * 1e3, g.robust_worst_case[2])
-    span = "both models, %s ms of delay, motor gain x%s" % (
-        "/".join("%g" % (d * 1e3) for d in u["delays_s"]), "/".join("%g" % v for v in u["input_gains"]))
-    if g.robust_to_models:
-        return ["  wheel input weight x%g, filter input noise x%g: the loop holds %s (worst radius %.5f: %s)"
-                % (g.r_wheel_scale, g.kalman.noise.input_noise_scale, span, g.robust_worst_radius, where)]
-    return ["  WARNING: no wheel weight and filter input noise make the loop hold %s at ts %.4g s (worst radius "
-            "%.4f: %s); using the plain design" % (span, g.ts_s, g.robust_worst_radius, where)]
+    u = kalman.UncertaintySet.describe()
+    m = g.margins
+
+    def at(w):
+        return "%s model, duties %g ms into the tick, motor gain x%g, wheel radius x%g" % (w[0], w[1] * 1e3, w[2], w[3])
+    span = "both models, %s ms of delay, motor gain x%s, wheel radius x%s" % (
+        "/".join("%g" % (d * 1e3) for d in u["delays_s"]), "/".join("%g" % v for v in u["input_gains"]),
+        "/".join("%g" % v for v in u["wheel_radius_factors"]))
+    where = "worst radius %.5f (%s), least damping %.3f (%s)" % (m.radius, at(m.radius_at), m.damping, at(m.damping_at))
+    if m.robust:
+        return ["  wheel input weight x%g, filter input noise x%g: the loop holds %s" % (
+            g.r_wheel_scale, g.kalman.noise.input_noise_scale, span), "    " + where]
+    return ["  WARNING: no wheel weight and filter input noise make the loop hold %s at ts %.4g s; using the "
+            "plain design" % (span, g.ts_s), "    " + where]
 
 
 def gains_file_name(variant, ts_s):

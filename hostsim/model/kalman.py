@@ -73,9 +73,12 @@ class NoiseSettings:
       Backlash (about 3 deg at a Large motor's output) is no white noise but free play in the
       drive; widening the encoders' variance for it made every run worse (the estimate then
       leans on the noisier gyro), so it is left to the robustness checks.
-    - gyro: integer deg/s readings (1/12 (deg/s)^2 of quantization) plus the sensor's own
-      noise and lag, ``gyro_noise_dps``: 0.5 deg/s, the top of the noise our Monte Carlo draws;
-      a 10 ms lag on the ~1 rad/s^2 of balancing is of the same size.
+    - gyro: integer deg/s readings (1/12 (deg/s)^2 of quantization) plus what else makes the
+      reading differ from the rate at the tick, ``gyro_noise_dps`` = 1 deg/s, in quadrature:
+      the sensor's noise (0.5 deg/s, the top of our Monte Carlo's), its lag (a 10 ms lag on the
+      ~1 rad/s^2 of balancing: 0.6 deg/s) and its scale error (about 2 %, on rates up to
+      20 deg/s: 0.4 deg/s) (../shared/ev3-hardware.md). The readings also stick and move in
+      steps of about 6 deg/s while turning (6/sqrt(12) = 1.7 deg/s): 1 deg/s is not pessimistic.
     Process:
     - input noise, volts on each actuated input, white per tick: what the model does not know
       about the motors from one tick to the next, chiefly Coulomb friction, which flips with
@@ -98,15 +101,22 @@ class NoiseSettings:
       Appendix D disturb the wheels).
     - gyro bias b, random walk: the EV3 gyro drifts with temperature and time; our design case,
       a drift of 0.01 deg/s per second, is a change of (0.01 deg/s)^2 per second.
+    - the wheels' acceleration, white per tick, ``wheel_accel_noise_m_s2`` = 0.2 m/s^2: what
+      the model does not know about where the wheels roll: their radius (which tyre, how
+      compressed: a few percent, and 20 % with the wrong wheel), the floor (slip, bumps, a
+      change of slope): 20 % of the ~1 m/s^2 of balancing. Without it a wheel radius 20 % off
+      the gains' leaves the loop undamped; with it the estimate of the lean relies less on the
+      wheels' exact acceleration.
     """
     encoder_count_rad: float = 2.0 * math.pi / ENCODER_COUNTS_PER_ROT
     gyro_resolution_dps: float = 1.0
-    gyro_noise_dps: float = 0.5
+    gyro_noise_dps: float = 1.0
     input_noise_v: tuple = (0.32, 0.32, 0.32, 0.8)
     disturbance_inputs: tuple = DISTURBANCE_INPUTS
     disturbance_rate_v2_per_s: float = 0.1
     bias_drift_dps_per_s: float = 0.01
     input_noise_scale: float = 1.0      # set by the design's robustness ladder (INPUT_NOISE_LADDER)
+    wheel_accel_noise_m_s2: float = 0.2
 
     @property
     def n_states(self):
@@ -124,6 +134,8 @@ class NoiseSettings:
         q[:N_X, :N_X] = b_act @ np.diag(np.square(np.asarray(self.input_noise_v) * self.input_noise_scale)) @ b_act.T
         q[N_X:N_X + nw, N_X:N_X + nw] = np.eye(nw) * self.disturbance_rate_v2_per_s * ts_s
         q[n - 1, n - 1] = (self.bias_drift_dps_per_s * DEG) ** 2 * ts_s
+        for i in (5, 6):
+            q[i, i] += (self.wheel_accel_noise_m_s2 * ts_s) ** 2
         return q
 
     def provenance(self):
@@ -135,8 +147,9 @@ class NoiseSettings:
             "gyro_resolution_dps": {"value": self.gyro_resolution_dps, "unit": "deg/s",
                                     "why": "GYRO-G&A reports integer deg/s: 1/12 (deg/s)^2"},
             "gyro_noise_dps": {"value": self.gyro_noise_dps, "unit": "deg/s", "variance_rad2_s2": r[4, 4],
-                               "why": "sensor noise and lag: the top of the Monte Carlo's 0-0.5 deg/s; a 10 ms "
-                                      "lag on ~1 rad/s^2 of balancing is as large"},
+                               "why": "in quadrature: sensor noise 0.5 deg/s (the top of the Monte Carlo's), a "
+                                      "10 ms lag on ~1 rad/s^2 of balancing 0.6 deg/s, a 2 % scale error on rates "
+                                      "up to 20 deg/s 0.4 deg/s; readings also step by ~6 deg/s (1.7 deg/s rms)"},
             "input_noise_v": {"value": list(self.input_noise_v), "unit": "V on u_r, u_l, u_th2, u_th3, white per tick",
                               "why": "Coulomb friction, which flips with the direction of turn: 4 % (Large) and "
                                      "10 % (Medium, joint 3) duty at 8 V"},
@@ -150,6 +163,9 @@ class NoiseSettings:
             "disturbance_rate_v2_per_s": {"value": self.disturbance_rate_v2_per_s, "unit": "V^2/s",
                                           "why": "a persistent disturbance (slope, friction level, battery sag, "
                                                  "a hand) changes by about 1 V over 10 s"},
+            "wheel_accel_noise_m_s2": {"value": self.wheel_accel_noise_m_s2, "unit": "m/s^2, white per tick",
+                                       "why": "the wheels' radius (tyre, compression; another wheel: 20 %) and the "
+                                              "floor (slip, bumps, slope): 20 % of the ~1 m/s^2 of balancing"},
             "bias_drift_dps_per_s": {"value": self.bias_drift_dps_per_s, "unit": "deg/s per s",
                                      "why": "gyro drift with temperature and time, as a random walk of "
                                             "0.01 deg/s per second"},
@@ -312,13 +328,14 @@ def delayed_plant(ac_si, bc_si, ts_s, delay_s):
     return a, b1, b0
 
 
-def loop_radius(kd, a, b1, b0):
-    """Spectral radius of plant, filter and law, the plant given as delayed_plant()'s
-    (A, B1, B0) (SI, 5 inputs): the new inputs land into the tick; state [x, u_{k-1}, x^]."""
+def loop_matrix(kd, a, b1, b0, rw_m=None):
+    """The loop of plant, filter and law, the plant given as delayed_plant()'s (A, B1, B0) (SI,
+    5 inputs) and its wheel radius (default the filter's; another one is a scale error of the
+    wheel encoders): state [x (10), u_{k-1} (4), x^ (n)]."""
     act = ACTUATED_INPUTS
     b1, b0 = b1[:, act], b0[:, act]
     n = kd.n
-    ca_x = kd.C[:, :N_X]
+    ca_x = fw_kalman.measurement_matrix(n, kd.rw_m if rw_m is None else rw_m)[:, :N_X]
     ikc = np.eye(n) - kd.L @ kd.C
     # u_k = -K x^_k;  x_{k+1} = A x_k + B1 u_k + B0 u_{k-1};
     # x^_{k+1} = ikc (A_a x^_k + B_a u_k) + L C_x x_{k+1}
@@ -331,39 +348,85 @@ def loop_radius(kd, a, b1, b0):
     big[hs, xs] = kd.L @ ca_x @ a
     big[hs, us] = kd.L @ ca_x @ b0
     big[hs, hs] = ikc @ (kd.A - kd.B @ kd.K) - kd.L @ ca_x @ b1 @ kd.K
-    return spectral_radius(big)
+    return big
+
+
+# Oscillations are judged above this frequency (slower modes are the estimates' own settling).
+DAMPING_ABOVE_HZ = 0.5
+
+
+def loop_margins(kd, a, b1, b0, rw_m=None):
+    """(spectral radius, least damping ratio of the loop's modes above DAMPING_ABOVE_HZ)."""
+    ev = np.linalg.eigvals(loop_matrix(kd, a, b1, b0, rw_m)).astype(complex)
+    ev = ev[np.abs(ev) > 1e-12]
+    s = np.log(ev) / kd.ts_s
+    hz = np.abs(s.imag) / (2 * np.pi)
+    zeta = -s.real / np.abs(s)
+    fast = hz > DAMPING_ABOVE_HZ
+    return float(np.max(np.abs(ev))), float(np.min(zeta[fast])) if fast.any() else 1.0
 
 
 # The uncertainty a design must hold (hostsim.model.gains): both model variants (they bracket
 # what is least certain about the drivetrain), the new duties landing 0-4 ms into the tick
-# (five sysfs reads, the compute, then up to four writes: ../shared/ev3-hardware.md), and the
-# motors' gain 20 % off (battery sag under load, motor constants).
+# (five sysfs reads, the compute, then up to four writes: ../shared/ev3-hardware.md), the
+# motors' gain 20 % off (battery sag under load, motor constants), and the wheels 20 % smaller
+# or larger than the gains' R_w (another tyre: a scale error of the wheel encoders). Every mode
+# of the loop must decay (time constant under 10 s: the gyro bias's own is ~7 s) and every
+# oscillation above 0.5 Hz with a damping ratio of at least 0.05.
 ROBUST_MODELS = ("paper", "physical")
 ROBUST_DELAYS_S = (0.0, 0.002, 0.004)
 ROBUST_INPUT_GAINS = (0.8, 1.0, 1.2)
-ROBUST_RADIUS_MAX = 0.999
+ROBUST_WHEEL_RADII = (0.8, 1.2)
+ROBUST_RADIUS_MAX = 0.9995
+ROBUST_DAMPING_MIN = 0.05
+
+
+@dataclasses.dataclass(frozen=True)
+class Margins:
+    radius: float           # the largest spectral radius over the set
+    radius_at: tuple        # (model, delay_s, motor gain, wheel radius factor)
+    damping: float          # the least damping ratio above DAMPING_ABOVE_HZ
+    damping_at: tuple
+
+    @property
+    def robust(self):
+        return self.radius <= ROBUST_RADIUS_MAX and self.damping >= ROBUST_DAMPING_MIN
 
 
 class UncertaintySet:
-    """The plants of ROBUST_MODELS x ROBUST_DELAYS_S x ROBUST_INPUT_GAINS at one period, built
-    once; worst(kd) -> (largest loop spectral radius, (model, delay_s, gain) where)."""
+    """The plants of the uncertainty above at one period, built once; margins(kd) -> Margins."""
 
     def __init__(self, params, ts_s):
         from hostsim.model.equations import RobotModel, state_scale_to_si
+        from hostsim.model.params import scaled_params
         self.plants = []
-        for name in ROBUST_MODELS:
-            model = RobotModel(name, params)
+
+        def add(name, p, where, delays, gains):
+            model = RobotModel(name, p)
             ac, bc = model.linearize()
             t = state_scale_to_si(model.variant)
             ac, bc = t @ ac @ np.linalg.inv(t), t @ bc
-            for d in ROBUST_DELAYS_S:
-                for g in ROBUST_INPUT_GAINS:
-                    self.plants.append(((name, d, g), delayed_plant(ac, bc * g, ts_s, d)))
+            for d in delays:
+                for g in gains:
+                    self.plants.append(((name, d, g, where), delayed_plant(ac, bc * g, ts_s, d), p["rw_m"]))
+        for name in ROBUST_MODELS:
+            add(name, params, 1.0, ROBUST_DELAYS_S, ROBUST_INPUT_GAINS)
+        for f in ROBUST_WHEEL_RADII:
+            add("physical", scaled_params({"rw_m": f}, params), f, (0.002,), (1.0,))
 
-    def worst(self, kd):
-        return max((loop_radius(kd, *plant), where) for where, plant in self.plants)
+    def margins(self, kd):
+        radius = damping = None
+        for where, plant, rw in self.plants:
+            r, z = loop_margins(kd, *plant, rw)
+            if radius is None or r > radius[0]:
+                radius = (r, where)
+            if damping is None or z < damping[0]:
+                damping = (z, where)
+        return Margins(radius[0], radius[1], damping[0], damping[1])
 
     @staticmethod
-    def describe(_=None):
+    def describe():
         return {"models": list(ROBUST_MODELS), "delays_s": list(ROBUST_DELAYS_S),
-                "input_gains": list(ROBUST_INPUT_GAINS), "radius_max": ROBUST_RADIUS_MAX}
+                "input_gains": list(ROBUST_INPUT_GAINS), "wheel_radius_factors": list(ROBUST_WHEEL_RADII),
+                "radius_max": ROBUST_RADIUS_MAX, "damping_min": ROBUST_DAMPING_MIN,
+                "damping_above_hz": DAMPING_ABOVE_HZ}

@@ -90,20 +90,27 @@ def gains_document(path, zero_kw):
 
 
 def run_one(task):
-    """Worker: one Monte Carlo run -> a JSON-ready row."""
+    """Worker: one Monte Carlo run -> a JSON-ready row (with the figures of the perfect-
+    measurement run of the same robot: hostsim.sim.linear_sim.IdealController)."""
+    from hostsim.sim import metrics
     from hostsim.sim.fil import run_firmware
-    from hostsim.sim.metrics import UPRIGHT_LIMIT_RAD
+    from hostsim.sim.linear_sim import simulate_nonlinear
+    from tipbot_fw.gains import gains_from_dict
 
     label, gains_path, zero_kw, base, index, seed, duration_s = task
     d = draw(np.random.default_rng([seed, index]))
     sc = scenario_for(base, d, duration_s)
+    doc = gains_document(gains_path, zero_kw)
     t0 = time.perf_counter()
-    run = run_firmware(sc, gains_doc=gains_document(gains_path, zero_kw), sysfs=False, keep_rows=False)
+    run = run_firmware(sc, gains_doc=doc, sysfs=False, keep_rows=False)
     wall = time.perf_counter() - t0
+    g = gains_from_dict(doc, gains_path)
+    m = metrics.compute(run, sc, g.u_max_v)
+    ideal = metrics.compute(simulate_nonlinear(g, sc, ideal=True), sc, g.u_max_v)
     x, u = run.x, run.u
     th1 = np.abs(x[:, 2])
     completed = bool(run.completed)
-    success = completed and bool(np.all(th1 < UPRIGHT_LIMIT_RAD)) and float(th1[-1]) < FINAL_TH1_RAD
+    success = completed and bool(np.all(th1 < metrics.UPRIGHT_LIMIT_RAD)) and float(th1[-1]) < FINAL_TH1_RAD
     return {
         "gains": label, "index": index, "success": success, "exit_code": run.exit_code,
         "stop_reason": run.stop_reason, "refused": run.stop_reason == "calibration",
@@ -111,6 +118,9 @@ def run_one(task):
         "peak_abs_th1_rad": float(th1.max()), "peak_abs_th2_rad": float(np.abs(x[:, 3]).max()),
         "peak_abs_th3_rad": float(np.abs(x[:, 4]).max()), "final_abs_th1_rad": float(th1[-1]),
         "peak_abs_u_v": float(np.abs(u[:, [0, 1, 3, 4]]).max()),
+        "saturated_fraction": m["saturated_fraction"], "rms_u_v": m["rms_u_v"], "ideal_rms_u_v": ideal["rms_u_v"],
+        "rms_th1_after_transient_rad": m["rms_th1_after_transient_rad"], "final_abs_d_m": m["final_abs_d_m"],
+        "oscillation_above_1hz": m["oscillation_above_1hz"],
         "draw": d,
     }
 
@@ -174,12 +184,18 @@ def summarize(rows):
     for r in rows:
         if not r["success"]:
             reasons[r["stop_reason"] or "?"] = reasons.get(r["stop_reason"] or "?", 0) + 1
+    done = [r for r in started if r["simulated_s"] > 2.5 and r.get("rms_u_v")]
+    wheel_ratio = [max(r["rms_u_v"][i] / r["ideal_rms_u_v"][i] for i in (0, 1)) for r in done]
     return {
         "runs": n, "successes": len(ok), "success_rate": len(ok) / n if n else None,
         "refused": n - len(started), "failures_by_reason": reasons,
         "success_rate_by_extra_delay": by_delay,
         "peak_abs_th1_rad": distribution(tilt),
         "peak_abs_u_v": distribution(volt),
+        "saturated_fraction": distribution([r["saturated_fraction"] for r in done]),
+        "wheel_rms_u_ratio_to_ideal": distribution(wheel_ratio),
+        "joint_rms_u_v": distribution([max(r["rms_u_v"][2:]) for r in done]),
+        "rms_th1_after_transient_rad": distribution([r["rms_th1_after_transient_rad"] for r in done]),
         "mean_wall_s": float(np.mean([r["wall_s"] for r in rows])) if rows else None,
     }
 
@@ -187,7 +203,9 @@ def summarize(rows):
 def format_table(results):
     head = "%-22s %5s %8s %7s %22s %22s %s" % ("gains", "runs", "success", "refused",
                                                "peak|th1| med/p95/max", "peak|u| V med/p95/max", "failures")
-    lines = [head]
+    head2 = "%-22s %22s %22s %22s %22s" % ("", "sat % med/p95/max", "wheel RMS / ideal", "joint RMS V",
+                                           "th1 RMS after 2 s")
+    lines = [head, head2]
     for label, res in results.items():
         if label.startswith("_"):
             continue
@@ -196,6 +214,11 @@ def format_table(results):
         lines.append("%-22s %5d %7.1f%% %7d %22s %22s %s" % (
             label, s["runs"], 100 * s["success_rate"], s["refused"], trio(s["peak_abs_th1_rad"], "%.3f"),
             trio(s["peak_abs_u_v"], "%.2f"), fails))
+        if s.get("wheel_rms_u_ratio_to_ideal"):
+            sat = {k: (100 * v if isinstance(v, float) else v) for k, v in s["saturated_fraction"].items()}
+            lines.append("%-22s %22s %22s %22s %22s" % (
+                "", trio(sat, "%.2f"), trio(s["wheel_rms_u_ratio_to_ideal"], "%.2f"),
+                trio(s["joint_rms_u_v"], "%.3f"), trio(s["rms_th1_after_transient_rad"], "%.4f")))
     m = results["_meta"]
     lines.append("%d runs of %g s in %.1f s on %d workers (%.2f runs/s, %.2f s per run per worker)" % (
         m["total_runs"], m["duration_s"], m["wall_s"], m["jobs"], m["runs_per_s"] or 0,

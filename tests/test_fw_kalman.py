@@ -1,0 +1,252 @@
+"""tipbot_fw.kalman: the fixed-point core equals the readable filter and law; the filter tells the
+gyro bias from the lean and follows a drifting bias; no sum of the product can overflow."""
+import math
+
+import numpy as np
+import pytest
+
+import fw_support as S
+from conftest import PAPER_GAINS, PHYSICAL_GAINS
+from tipbot_fw import fixedpoint as fx
+from tipbot_fw import kalman
+from tipbot_fw.gains import ACTUATED_INPUTS, load_gains
+from tipbot_fw.kalman import KalmanCore, fold, reference_step
+
+DEG = math.pi / 180
+ACT = ACTUATED_INPUTS
+
+
+def committed(name):
+    return load_gains({'physical': PHYSICAL_GAINS, 'paper': PAPER_GAINS}[name])
+
+
+# ------------------------------------------------------------------ the folded law
+def xi_step(kal, M, xi, u, m_prev, m):
+    """One tick through the folded matrix, in float: -> (u_k, xi_k)."""
+    n = kal.n
+    v = np.concatenate([u, xi, (m - m_prev)[:2], m])
+    z = M.dot(v)
+    return z[:4], z[4:4 + n]
+
+
+@pytest.mark.parametrize('name', ['physical', 'paper'])
+def test_folded_matrix_equals_the_filter_and_the_law(name):
+    kal = committed(name).kalman
+    M = fold(kal.A, kal.B, kal.C, kal.L, kal.K, kal.wheel_radius_m)
+    np.testing.assert_allclose(kal.law_M, M, rtol=0, atol=1e-9 * np.abs(M).max())   # the file's
+    rng = np.random.RandomState(3)
+    T = np.zeros((kal.n, 5))
+    T[0, 0] = T[1, 1] = kal.wheel_radius_m
+    xf = rng.normal(0, 0.05, kal.n)
+    m_prev = rng.normal(0, 0.1, 5)
+    m_prev[:2] += 300.0                     # the wheels far from their start: xi stays small
+    xf[:2] += kal.wheel_radius_m * 300.0
+    xi = xf - T.dot(m_prev)
+    for _ in range(200):
+        u = rng.uniform(-7, 7, 4)
+        m = m_prev + rng.normal(0, 0.02, 5)
+        xf, u_ref = reference_step(kal, xf, u, m)
+        u_fold, xi = xi_step(kal, M, xi, u, m_prev, m)
+        np.testing.assert_allclose(u_fold, u_ref, rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(xi + T.dot(m), xf, rtol=1e-9, atol=1e-9)
+        assert np.abs(xi[:2]).max() < 1.0   # xi_d = d - R_w phi stays small however far it rolled
+        m_prev = m
+
+
+def test_the_absolute_wheel_angle_drops_out_of_the_update():
+    # (F - I) T + L has zero wheel columns: the model does not depend on where the robot stands
+    kal = committed('physical').kalman
+    n = kal.n
+    f = (np.eye(n) - kal.L.dot(kal.C)).dot(kal.A)
+    T = np.zeros((n, 5))
+    T[0, 0] = T[1, 1] = kal.wheel_radius_m
+    w = (f - np.eye(n)).dot(T) + kal.L
+    assert np.abs(w[:, :2]).max() < 1e-9 * np.abs(kal.L).max()
+
+
+# ------------------------------------------------------------------ the fixed-point core
+class Robot(object):
+    """The robot's linear model (a committed gains file's, SI) in closed loop with a core, with
+    1-count encoders (zero at `zeros`), an integer gyro with bias (deg/s, may drift) and noise,
+    and the duties as applied inputs; or open loop through given readings."""
+
+    def __init__(self, gains, x0, bias_dps=1.0, zeros=(5000, -7000, 40, -60), noise_dps=0.3, seed=1):
+        self.A, self.B = gains.A, gains.B
+        self.x = np.array(x0, dtype=float)
+        self.bias_dps, self.zeros = bias_dps, zeros
+        self.rw = gains.kalman.wheel_radius_m
+        self.rng = np.random.RandomState(seed)
+        self.noise_dps = noise_dps
+        self.t = 0.0
+
+    def read(self):
+        x, k = self.x, 180 / math.pi
+        phi = (x[0] / self.rw - x[2], x[1] / self.rw - x[2], x[3], x[4])
+        enc = tuple(int(math.floor(p * k + 0.5)) + z for p, z in zip(phi, self.zeros))
+        rate = x[7] * k + self.bias(self.t) + self.noise_dps * self.rng.normal()
+        return enc, (int(round(x[2] * k)), int(math.floor(rate + 0.5)))
+
+    def bias(self, t):
+        return self.bias_dps(t) if callable(self.bias_dps) else self.bias_dps
+
+    def apply(self, duties, battery_v, ts):
+        u = np.zeros(5)
+        u[ACT] = np.array(duties) * battery_v / 100.0
+        self.x = self.A.dot(self.x) + self.B.dot(u)
+        self.t += ts
+
+
+def core_duty_unrounded(core):
+    """The duties of the last product before rounding: acc / 2^E (without the rounding constant)."""
+    return [(int(core.acc[i]) - (1 << (core.shift_list[i] - 1))) / 2.0 ** core.row_exp[i] for i in range(4)]
+
+
+def run_core(gains, robot, seconds, config=None, bias0_dps=1.0, battery_v=8.0, on_tick=None):
+    core = KalmanCore(gains, config or S.fw_config())
+    core.set_gyro_bias(bias0_dps)
+    core.set_battery(battery_v)
+    buf = bytearray(core.rows.row_bytes)
+    out = []
+    for k in range(int(round(seconds / gains.ts_s))):
+        enc, gyro = robot.read()
+        x = robot.x.copy()
+        duties, stop = (core.start if k == 0 else core.step)(enc, gyro, buf, 0)
+        assert not stop
+        out.append((x, core.estimate(), list(duties), enc, gyro, core_duty_unrounded(core)))
+        robot.apply(duties, battery_v, gains.ts_s)
+        if on_tick:
+            on_tick(k, core)
+    return core, out
+
+
+def test_the_fixed_point_core_follows_the_readable_filter_step_by_step():
+    gains = committed('physical')
+    kal = gains.kalman
+    robot = Robot(gains, [0, 0, 0.02, 0.01, 0, 0, 0, 0, 0, 0])
+    core, out = run_core(gains, robot, 10.0, config=S.fw_config(start_pose_rad={'th1': 0.02, 'th2': 0.01}))
+    # the reference, fed the same readings and the same applied duties
+    rpc = 2 * math.pi / 360
+    zeros = out[0][3]
+    xf = np.array(core.x0)
+    worst_x = worst_u = 0.0
+    for k in range(1, len(out)):
+        enc, gyro = out[k][3], out[k][4]
+        m = np.array([(enc[0] - zeros[0]) * rpc, (enc[1] - zeros[1]) * rpc, 0.01 + (enc[2] - zeros[2]) * rpc,
+                      (enc[3] - zeros[3]) * rpc, gyro[1] * DEG])
+        u_prev = np.array(out[k - 1][2]) * 8.0 / 100
+        xf, u = reference_step(kal, xf, u_prev, m)
+        worst_x = max(worst_x, np.max(np.abs(np.array(out[k][1]) - xf) / np.array(kal.state_bounds)))
+        worst_u = max(worst_u, np.max(np.abs(np.array(out[k][5]) - u * 100 / 8.0)))
+    # states within 1e-7 of their ranges (the resolution is 2^-32 of them), commands within
+    # 1e-3 of a duty step (0.08 mV at 8 V) before their rounding
+    assert worst_x < 1e-7
+    assert worst_u < 1e-3
+    assert max(abs(np.array(o[2])).max() for o in out) > 3      # the law did work
+
+
+def test_replays_of_the_core_are_bit_exact_and_the_integers_deterministic():
+    gains = committed('physical')
+    a = KalmanCore(gains, S.fw_config())
+    b = KalmanCore(load_gains(PHYSICAL_GAINS), S.fw_config())
+    for c in (a, b):
+        c.set_gyro_bias(1.5)
+        c.set_battery(7.83)
+    assert np.array_equal(a.M, b.M) and a.shift_list == b.shift_list
+    assert a.M.dtype == np.int64
+
+
+@pytest.mark.parametrize('name', ['physical', 'paper'])
+@pytest.mark.parametrize('battery_v', kalman.BATTERY_RANGE_V)
+def test_no_sum_of_the_product_can_overflow(name, battery_v):
+    core = KalmanCore(committed(name), S.fw_config())
+    core.set_gyro_bias(2.0)
+    core.set_battery(battery_v)
+    # every input at its bound, with the sign that adds up: computed with Python's exact integers
+    m = [[int(v) for v in row] for row in core.M]
+    bounds = [int(b) for b in core.v_bounds]
+    worst = max(sum(abs(a) * b for a, b in zip(row, bounds)) for row in m)
+    assert worst < 2 ** 63
+    # and numpy's int64 product agrees with the exact one there
+    rng = np.random.RandomState(4)
+    for _ in range(20):
+        v = [int(rng.choice([-1, 1])) * b for b in bounds]
+        v[-1] = 1
+        exact = [sum(a * x for a, x in zip(row, v)) for row in m]
+        assert core.M.dot(np.array(v, dtype=np.int64)).tolist() == exact
+
+
+def test_the_battery_outside_the_scaled_range_is_refused():
+    core = KalmanCore(committed('physical'), S.fw_config())
+    core.set_gyro_bias(0.0)
+    from tipbot_fw.safety import DeviceFailure
+    with pytest.raises(DeviceFailure, match='outside the 4.0..12.0 V'):
+        core.set_battery(0.001)
+
+
+def test_a_wheel_encoder_jump_is_a_failed_read():
+    gains = committed('physical')
+    core = KalmanCore(gains, S.fw_config())
+    core.set_gyro_bias(0.0)
+    core.set_battery(8.0)
+    buf = bytearray(core.rows.row_bytes)
+    core.start((0, 0, 0, 0), (0, 0), buf, 0)
+    core.step((3, -2, 0, 0), (0, 0), buf, 0)
+    from tipbot_fw.safety import DeviceFailure
+    with pytest.raises(DeviceFailure, match='jumped by 5000 counts'):
+        core.step((5003, -2, 0, 0), (0, 0), buf, 0)
+
+
+def test_joint_limits_are_checked_on_the_counts_before_the_product():
+    core = KalmanCore(committed('physical'), S.fw_config(start_pose_rad={'th2': 0.2}))
+    core.set_gyro_bias(0.0)
+    core.set_battery(8.0)
+    buf = bytearray(core.rows.row_bytes)
+    core.start((0, 0, 100, 0), (0, 0), buf, 0)
+    # th2 = 0.2 + counts * pi/180 <= 1.2 rad: 57 counts is 1.1948 rad, 58 is 1.2123
+    assert core.step((0, 0, 157, 0), (0, 0), buf, 0)[1] == 0
+    assert core.step((0, 0, 158, 0), (0, 0), buf, 0)[1] == kalman.JOINT_LIMIT
+    lo2, hi2 = core.joint_bounds[:2]
+    assert (lo2, hi2) == (-80, 57)
+
+
+# ------------------------------------------------------------------ bias and lean
+def test_a_wrong_calibrated_bias_is_corrected_and_not_taken_for_a_lean():
+    # the calibration said 0 deg/s, the gyro's bias is 1 deg/s
+    gains = committed('physical')
+    robot = Robot(gains, np.zeros(10), bias_dps=1.0, noise_dps=0.3)
+    core, out = run_core(gains, robot, 30.0, bias0_dps=0.0)
+    x = np.array([o[0] for o in out])
+    xh = np.array([o[1] for o in out])
+    bias = xh[:, -1] / DEG
+    assert abs(bias[-400:].mean() - 1.0) < 0.03           # found within a few percent
+    assert np.abs(x[-2000:, 2]).max() < 0.005              # the robot stands upright...
+    assert abs(x[-1, 0]) < 0.05                            # ...and did not roll away
+    # the old signal chain integrated the biased rate: 1 deg/s is 0.52 rad of lean in 30 s
+
+
+def test_a_lean_at_the_start_is_found_and_not_taken_for_a_bias():
+    # released at 0.02 rad while the firmware was told 0 (the Section 8 release), bias exact
+    gains = committed('physical')
+    robot = Robot(gains, [0, 0, 0.02, 0, 0, 0, 0, 0, 0, 0], bias_dps=1.0, noise_dps=0.3)
+    core, out = run_core(gains, robot, 30.0, bias0_dps=1.0)
+    x = np.array([o[0] for o in out])
+    xh = np.array([o[1] for o in out])
+    err = np.abs(xh[:, 2] - x[:, 2])
+    assert err[0] == pytest.approx(0.02, abs=1e-9)
+    assert err[400:].max() < 0.005                         # the tilt found within 2 s
+    bias_err = np.abs(xh[:, -1] / DEG - 1.0)
+    assert bias_err[-1000:].max() < 0.05                   # and the bias not left learning it
+
+
+def test_a_drifting_bias_is_followed():
+    # 0.01 deg/s more every second for 60 s: 0.6 deg/s in all (the design case)
+    gains = committed('physical')
+    robot = Robot(gains, np.zeros(10), bias_dps=lambda t: 1.0 + 0.01 * t, noise_dps=0.3)
+    core, out = run_core(gains, robot, 60.0, bias0_dps=1.0)
+    x = np.array([o[0] for o in out])
+    xh = np.array([o[1] for o in out])
+    t = np.arange(len(out)) * gains.ts_s
+    lag = (1.0 + 0.01 * t) - xh[:, -1] / DEG
+    assert np.abs(lag[2000:]).max() < 0.15                 # deg/s: follows with a small lag
+    assert abs(0.5 * (x[-1, 0] + x[-1, 1])) < 0.05         # m: rolled less than 5 cm
+    assert np.abs(x[2000:, 2]).max() < 0.005
