@@ -107,13 +107,12 @@ def robust_design(variant, params, ts_s, a, b, q, r, e_mat, noise=None):
         for scale in kalman.INPUT_NOISE_LADDER:
             ns = dataclasses.replace(base, input_noise_scale=scale)
             kd = kalman.design_kalman(t @ a @ ti, t @ b, k @ ti, k_w, params["rw_m"], ts_s, ns)
-            margins = uncertainty.margins(kd)
-            found = dict(r_wheel_scale=factor, R=r_try, K=k, P=p, eig=eig, K_w=k_w, kalman=kd, margins=margins)
+            found = dict(r_wheel_scale=factor, R=r_try, K=k, P=p, eig=eig, K_w=k_w, kalman=kd)
             if plain is None:
                 plain = found
-            if margins.robust:
-                return found
-    return plain
+            if uncertainty.holds(kd):
+                return dict(found, margins=uncertainty.margins(kd))
+    return dict(plain, margins=uncertainty.margins(plain["kalman"]))
 
 
 def state_feedback_radii(variant, params, ts_s, k):

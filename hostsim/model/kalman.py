@@ -410,9 +410,17 @@ class UncertaintySet:
                 for g in gains:
                     self.plants.append(((name, d, g, where), delayed_plant(ac, bc * g, ts_s, d), p["rw_m"]))
         for name in ROBUST_MODELS:
-            add(name, params, 1.0, ROBUST_DELAYS_S, ROBUST_INPUT_GAINS)
+            add(name, params, 1.0, ROBUST_DELAYS_S[::-1], ROBUST_INPUT_GAINS[::-1])   # the harder first
         for f in ROBUST_WHEEL_RADII:
             add("physical", scaled_params({"rw_m": f}, params), f, (0.002,), (1.0,))
+
+    def holds(self, kd):
+        """margins(kd).robust, stopping at the first plant that fails (for the design's ladder)."""
+        for _, plant, rw in self.plants:
+            r, z = loop_margins(kd, *plant, rw)
+            if r > ROBUST_RADIUS_MAX or z < ROBUST_DAMPING_MIN:
+                return False
+        return True
 
     def margins(self, kd):
         radius = damping = None

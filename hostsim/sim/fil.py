@@ -293,8 +293,11 @@ def _firmware_side(header, rows, gains, d_origin, n):
     shift[:2] = d_origin
     xhat = sig["x_hat"] + shift
     w_hat, u_cmd, u_unsat = sig["w_hat"], sig["u"], sig["u_cmd"]
+    flags = rows[:n, [c["name"] for c in header["columns"]].index("flags")].astype(int)
+    saturated = (flags & logfile.SATURATION_BITS) != 0
     if len(xhat) < n:
         pad = n - len(xhat)
         xhat, w_hat, u_cmd, u_unsat = (np.vstack([a, np.full((pad, a.shape[1]), np.nan)])
                                        for a in (xhat, w_hat, u_cmd, u_unsat))
-    return dict(xhat=xhat, w_hat=w_hat, u_cmd=u_cmd, u_unsat=u_unsat)
+        saturated = np.concatenate([saturated, np.zeros(pad, dtype=bool)])
+    return dict(xhat=xhat, w_hat=w_hat, u_cmd=u_cmd, u_unsat=u_unsat, saturated=saturated)

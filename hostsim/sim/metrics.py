@@ -44,7 +44,9 @@ def compute(run, sc, u_max_v):
     t, x, u = run.t_s, run.x, run.u
     origin = np.zeros(2) + run.d_origin_m
     th1 = x[:, 2]
-    sat = np.any(np.abs(u[:, ACTUATED_INPUTS]) >= u_max_v - 1e-6, axis=1)
+    # the firmware's own flags (a duty limited at u_max_v or 100 %: at a battery voltage that is
+    # not a divisor, the limit is a duty just under u_max_v); else the inputs at u_max_v
+    sat = run.saturated if run.saturated is not None else np.any(np.abs(u[:, ACTUATED_INPUTS]) >= u_max_v - 1e-6, axis=1)
     m = {
         "duration_s": _f(t[-1]),
         "completed": bool(run.completed),

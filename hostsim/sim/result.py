@@ -25,6 +25,7 @@ class RunResult:
     # The firmware in the loop only:
     y: Optional[np.ndarray] = None       # its signal chain's measurement, scenario frame (n x 10)
     u_cmd: Optional[np.ndarray] = None   # the inputs it applied (n x 5, V)
+    saturated: Optional[np.ndarray] = None  # per tick: a duty was limited (its log's flags)
     exit_code: Optional[int] = None
     stop_reason: Optional[str] = None
     header: Optional[dict] = None        # its log's header
