@@ -184,6 +184,30 @@ def to_document(g):
     return doc
 
 
+def with_law(doc, k_file=None, k_w=None, note=""):
+    """A gains document with another law: K (file units, 5 x 10) and/or K_w (5 x 5); the Kalman
+    block's K_a and folded law follow (the filter itself is unchanged). For baselines and
+    diagnoses (the PD baseline, K_w = 0), not for the robot."""
+    from tipbot_fw.gains import gains_from_dict
+    from tipbot_fw.kalman import fold
+    out = json.loads(json.dumps(doc))
+    if k_file is not None:
+        out["K"] = np.asarray(k_file, dtype=float).tolist()
+    if k_w is not None:
+        out["K_w"] = np.asarray(k_w, dtype=float).tolist()
+    a, b, k = (np.array(out[key]) for key in ("A", "B", "K"))
+    out["closed_loop_spectral_radius"] = float(np.max(np.abs(np.linalg.eigvals(a - b @ k))))
+    si = gains_from_dict(dict(out, kalman=doc["kalman"]), "<with_law>", check_kalman=False)
+    kal = out["kalman"]
+    dist = [i for i, name in enumerate(("w_r", "w_l", "w_th2", "w_th3")) if name in kal["state_names"]]
+    k_a = kalman.law_gain(si.K, si.K_w, dist)
+    kal["K"] = k_a.tolist()
+    kal["law"] = dict(kal["law"], M=fold(*(np.array(kal[key]) for key in ("A", "B", "C", "L")), k_a,
+                                         kal["wheel_radius_m"]).tolist())
+    out["generator"] = doc["generator"] + note
+    return out
+
+
 def _rounded(value):
     """Plain JSON types with floats rounded (_num), matrices as lists of rows."""
     if isinstance(value, dict):

@@ -34,6 +34,7 @@ import tempfile
 import numpy as np
 
 from hostsim.model.equations import RobotModel, state_scale_to_si
+from hostsim.model.gains import with_law
 from hostsim.model.params import load_params, scaled_params
 from hostsim.sim.result import RunResult
 from hostsim.world.plant import Plant
@@ -180,17 +181,10 @@ class World:
 def pd_gains_document(doc, k_pd_file):
     """A gains document whose law is the PD baseline: K = K_pd (file units), K_w = 0.
 
-    The firmware has one control law, u = -K x~ - K_w w^; with this document it applies the
-    PD to its estimate x~, which follows y within a few ticks (detector poles at 0.2).
+    The firmware's law is u = -K x^ - K_w w^; with this document it applies the PD to its
+    estimate x^ (the Kalman filter's by default, the detector's with estimator=detector).
     """
-    out = dict(doc)
-    k = np.asarray(k_pd_file, dtype=float)
-    out["K"] = k.tolist()
-    out["K_w"] = np.zeros((5, 5)).tolist()
-    a, b = np.array(doc["A"]), np.array(doc["B"])
-    out["closed_loop_spectral_radius"] = float(np.max(np.abs(np.linalg.eigvals(a - b @ k))))
-    out["generator"] = doc["generator"] + " + hostsim.pd baseline"
-    return out
+    return with_law(doc, k_pd_file, np.zeros((5, 5)), " + hostsim.pd baseline")
 
 
 def run_firmware(sc, gains_path=None, gains_doc=None, sysfs=True, log_path=None, keep_rows=True, params=None,

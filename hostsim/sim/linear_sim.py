@@ -14,6 +14,7 @@ import numpy as np
 from hostsim.model import design
 from hostsim.model.params import scaled_params
 from hostsim.model.equations import RobotModel, state_scale_to_si
+from hostsim.sim.governor import ReferenceGovernor
 from hostsim.sim.result import RunResult
 from hostsim.world.plant import Plant
 from hostsim.sim.scenario import disturbance_at
@@ -29,13 +30,18 @@ class HostController:
     """Detector + control law of docs/architecture.md (SI), one tick at a time.
 
     With ``k_pd`` (5x10, SI) the law is the PD baseline u = -K_pd y (no K_w); the detector
-    still runs, so its estimates can be compared.
+    still runs, so its estimates can be compared. With ``governor`` (hostsim.sim.governor) the
+    law acts around the governor's reference: u = u_r - K (x~ - x_r) - K_w w^.
     """
 
-    def __init__(self, g, xhat0, y0, k_pd=None):
+    def __init__(self, g, xhat0, y0, k_pd=None, governor=None):
         self.g = g
         self.k_pd = k_pd
+        self.governor = governor
+        self.ref, self.u_ref = np.zeros(10), np.zeros(5)
         self.xh = np.array(xhat0, dtype=float)
+        if governor is not None:
+            self.ref, self.u_ref = governor.reference(self.xh)
         self.y = np.array(y0, dtype=float)
         self.w_hat = np.zeros(5)
         self.u_unsat = self._law(self.xh, self.y, self.w_hat)
@@ -45,7 +51,7 @@ class HostController:
     def _law(self, xh, y, w_hat):
         if self.k_pd is not None:
             return -self.k_pd @ y
-        return -self.g.K @ xh - self.g.K_w @ w_hat
+        return self.u_ref - self.g.K @ (xh - self.ref) - self.g.K_w @ w_hat
 
     def update(self, y_next):
         """Read y_{k+1}: update the estimate and w^, return u_{k+1} (saturated)."""
@@ -55,6 +61,8 @@ class HostController:
         self.w_hat = g.G_w @ nu
         self.xh = g.A @ self.xh + g.B @ self.u + g.L1 @ (self.y - g.C @ self.xh) + g.L2 @ nu
         self.y = np.array(y_next, dtype=float)
+        if self.governor is not None:
+            self.ref, self.u_ref = self.governor.reference(self.xh)
         self.u_unsat = self._law(self.xh, self.y, self.w_hat)
         self.u = _saturate(self.u_unsat, g.u_max_v)
         return self.u
@@ -117,7 +125,8 @@ def _simulate(g, sc, k_pd, x0, step, fallen, ideal=False):
     n_steps = int(round(sc.duration_s / g.ts_s))
     xhat0 = sc.xhat0_si if sc.xhat0_si is not None else sc.x0_si
     x = np.array(x0, dtype=float)
-    ctl = IdealController(g, sc, x) if ideal else HostController(g, xhat0, g.C @ x, k_pd)
+    governor = ReferenceGovernor(g, xhat0) if sc.reference_governor and k_pd is None and not ideal else None
+    ctl = IdealController(g, sc, x) if ideal else HostController(g, xhat0, g.C @ x, k_pd, governor)
     pending = [np.zeros(5)] * sc.extra_delay_ticks
     rec = _Recorder(n_steps)
     for k in range(n_steps + 1):

@@ -62,6 +62,7 @@ DEFAULTS = {
     "modes": ["linear", "firmware"],  # which simulations to run (MODES)
     "settle_band_rad": 0.02,          # |th1| band for the settling time
     "expect": {},                     # optional pass criteria checked by `hostsim run`
+    "reference_governor": False,      # linear/nonlinear: the law follows hostsim.sim.governor's reference
 }
 
 
@@ -116,6 +117,7 @@ class Scenario:
     modes: tuple
     settle_band_rad: float
     expect: dict
+    reference_governor: bool
 # expect: {"<mode>/<controller>": {key: bound}}; every bound is an upper limit except upright.
 EXPECT_KEYS = ("max_abs_th1_rad", "max_abs_th2_rad", "max_abs_th3_rad", "settle_time_s", "max_abs_u_v",
                "final_abs_d_m", "final_est_error", "upright")
@@ -191,6 +193,7 @@ def parse_scenario(doc, src="<scenario>"):
     sc["settle_band_rad"] = f.number("settle_band_rad", sc["settle_band_rad"], lo=0)
     f.check("seed", sc["seed"], fields.number(integer=True))
     f.check("expect", sc["expect"], fields.obj)
+    f.check("reference_governor", sc["reference_governor"], fields.boolean)
     runs = {"%s/%s" % (m, c) for m in sc["modes"] for c in sc["controllers"]}
     for label, bounds in sc["expect"].items():
         name = "expect.%s" % label

@@ -29,6 +29,7 @@ import time
 
 import numpy as np
 
+from hostsim.model.gains import with_law
 from hostsim.model.params import MOTOR_ROLES
 from hostsim.paths import REPO_ROOT, out_dir
 from hostsim.studies.stats import distribution, trio
@@ -84,7 +85,7 @@ def gains_document(path, zero_kw):
         with open(path) as f:
             doc = json.load(f)
         if zero_kw:
-            doc["K_w"] = np.zeros((5, 5)).tolist()
+            doc = with_law(doc, k_w=np.zeros((5, 5)), note=" + K_w = 0")
         _DOCS[key] = doc
     return _DOCS[key]
 
