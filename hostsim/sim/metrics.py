@@ -129,7 +129,8 @@ def with_ideal(m, ideal):
     """Adds the ideal (perfect-measurement) run's input RMS to a run's metrics, and the ratio."""
     out = dict(m)
     out["ideal_rms_u_v"] = list(ideal["rms_u_v"])
-    out["rms_u_ratio_to_ideal"] = [_f(a / b) if b else None for a, b in zip(m["rms_u_v"], ideal["rms_u_v"])]
+    # an input the ideal run does not use (below 1 mV) has no ratio
+    out["rms_u_ratio_to_ideal"] = [_f(a / b) if b > 1e-3 else None for a, b in zip(m["rms_u_v"], ideal["rms_u_v"])]
     return out
 
 
