@@ -250,9 +250,11 @@ Runs are labelled `<mode>/<controller>`:
   firmware's signal chain (green);
 - `firmware`: the unmodified firmware (tipbot_fw, through the fake EV3 sysfs tree and its real
   device layer) against the nonlinear plant and the sensor models, in lock-step on a virtual
-  clock (blue, as the paper's experiments). As on the robot, its estimate starts from the first
-  measurement (x~(0) = y(0), not the scenario's x~(0)), and its wheel-position origin is where
-  the wheels stand: it regulates d to d(0) - R_w th1(0) of the scenario's frame. Positions,
+  clock (blue, as the paper's experiments), with its default estimator, the Kalman filter. As
+  on the robot, its estimate starts from the start pose it is told, at rest (not the scenario's
+  x~(0)), and its wheel-position origin is where the wheels stand: it regulates d to
+  d(0) - R_w th1(0) of the scenario's frame. Each run's metrics compare its input RMS with the
+  ideal run's (the law fed the exact state and disturbance on the nonlinear plant). Positions,
   estimates and final displacements are shown in the scenario's frame. The plant is held at the
   start pose during the firmware's 1 s gyro calibration and released at t = 0.
 
