@@ -4,23 +4,25 @@ It measures what the sensors measure and carries, beside the robot's state, the 
 disturbances and the gyro bias, so that the compensation ``u = -K x^ - K_w w^`` and the bias
 come out of one filter (docs/architecture.md, "Kalman filter").
 
-Augmented model, SI, one step of the period ts (x_a has 15 entries):
+Augmented model, SI, one step of the period ts (x_a has 13 entries):
 
-    x_a = [x (10), w (4: volts on u_r, u_l, u_th2, u_th3), b (gyro bias, rad/s)]
-    x_a+ = A_a x_a + B_a u + noise       A_a = [[A, B_act, 0], [0, I, 0], [0, 0, 1]], B_a = [B_act; 0; 0]
+    x_a = [x (10), w_r, w_l (volts on the wheels' inputs), b (gyro bias, rad/s)]
+    x_a+ = A_a x_a + B_a u + noise       A_a = [[A, B_wheels, 0], [0, I, 0], [0, 0, 1]], B_a = [B_act; 0; 0]
     m    = C_a x_a + noise               m = [phi_r, phi_l, th2, th3, gyro]
 
 phi_r, phi_l are the wheel encoders' angles, which are RELATIVE to link 1 (the motors sit on
 it): phi = d / R_w - th1; th2, th3 the joint encoders; gyro = th1' + b. So the filter sees no
 state directly but the joint angles: the tilt and its bias are told apart by the dynamics (a
-lean that the model cannot explain without the base accelerating, which the wheel encoders
-would see; see ``bias_lean_separation``).
+lean the model cannot explain without the base accelerating, which the wheel encoders see; a
+bias error instead makes the estimated tilt drift while nothing else moves: the pair is
+observable, rank 13, and the filter's error decays whatever its start: tests/test_fw_kalman.py
+shows a wrong calibrated bias found and a wrong start tilt not learnt as a bias).
 
 Filter, in the "current" (filtered) form: the estimate of tick k uses the reading of tick k,
 and the model is fed the input actually APPLIED (after rounding and saturation):
 
     x^_k  = x-_k + L (m_k - C_a x-_k)          x-_k = A_a x^_{k-1} + B_a u_{k-1}
-    u_k   = -K_a x^_k,   K_a = [K_act, K_w_act, 0]
+    u_k   = -K_a x^_k,   K_a = [K_act, K_w_act (the wheels' columns), 0]
 
 L is the steady-state gain of the discrete Riccati equation (scipy) with the noise settings of
 ``NoiseSettings``; each one is derived from a published hardware fact or a stated physical
@@ -291,19 +293,6 @@ def design_kalman(a_si, b_si, k_si, k_w, rw_m, ts_s, noise=None):
 
 
 reference_step = fw_kalman.reference_step
-
-
-def closed_loop_matrix(kd, a_plant, b_plant):
-    """The linear loop of a plant (SI, 10 states), the filter and the law, unsaturated, state
-    [x (10), x^ (n)]: its spectral radius says whether the design holds that plant."""
-    bp = b_plant[:, ACTUATED_INPUTS]
-    ca_x = kd.C[:, :N_X]                  # the sensors see the plant's x (no bias in the plant)
-    ikc = np.eye(kd.n) - kd.L @ kd.C
-    # x_k = A x_{k-1} + B u_{k-1};  x^_k = ikc (A_a x^_{k-1} + B_a u_{k-1}) + L C_x x_k;
-    # u_{k-1} = -K_a x^_{k-1}
-    top = np.hstack([a_plant, -bp @ kd.K])
-    bottom = np.hstack([kd.L @ ca_x @ a_plant, ikc @ (kd.A - kd.B @ kd.K) - kd.L @ ca_x @ bp @ kd.K])
-    return np.vstack([top, bottom])
 
 
 def spectral_radius(m):
