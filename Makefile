@@ -10,10 +10,12 @@ REQ      := requirements-host.txt
 VENV_KEY := $(shell { cat $(REQ); $(PYTHON) -c 'import sys; print(sys.version)'; } 2>/dev/null | sha256sum | cut -c1-16)
 STAMP    := $(VENV)/.tipbot-venv-$(VENV_KEY)
 
-# make gains TS=0.010 VARIANT=paper PARAMS=identified.json
+# make gains TS=0.010 VARIANT=paper PARAMS=identified.json [GAINS_DIR=gains]
+# (another TS or PARAMS writes its own file, e.g. gains/physical-ts0.010.json)
 TS       ?=
 PARAMS   ?=
 VARIANT  ?=
+GAINS_DIR ?=
 # make test PYTEST_ARGS='-k gains -x'
 PYTEST_ARGS ?=
 # make bench TICKS=2000
@@ -46,7 +48,8 @@ help:
 	@echo "  venv         create/update $(VENV) from $(REQ) (idempotent)"
 	@echo "  test         run the test suite (pytest tests/; PYTEST_ARGS=...)"
 	@echo "  sim          paper scenarios + robustness, firmware in the loop -> out/sim/report.md"
-	@echo "  gains        regenerate gains/*.json (TS=0.010 VARIANT=paper|physical)"
+	@echo "  gains        regenerate gains/*.json; unchanged within tolerance: left as they are"
+	@echo "               (TS=0.010 VARIANT=paper|physical PARAMS=file: another TS/PARAMS gets its own file)"
 	@echo "  paper-check  compare the paper variant's gains with the paper's Appendix C"
 	@echo "  replay       replay a robot log on the host (LOG=file; GAINS=other.json)"
 	@echo "  bench        simulation real-time factor; instructions per control tick on the virtual brick"
@@ -75,7 +78,8 @@ test: venv
 	exit $$rc
 
 gains: venv
-	$(VPY) -m hostsim.gains $(if $(TS),--ts $(TS)) $(if $(VARIANT),--variant $(VARIANT)) $(if $(PARAMS),--params $(PARAMS))
+	$(VPY) -m hostsim.gains $(if $(TS),--ts $(TS)) $(if $(VARIANT),--variant $(VARIANT)) $(if $(PARAMS),--params $(PARAMS)) \
+	  $(if $(GAINS_DIR),--out-dir $(GAINS_DIR))
 
 paper-check: venv
 	$(VPY) -m hostsim.paper_check
