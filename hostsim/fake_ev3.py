@@ -83,6 +83,10 @@ _GYRO_MODE_INFO = {name: (n, units) for name, n, units in GYRO_MODES}
 GYRO_MODE_NAMES = tuple(name for name, _, _ in GYRO_MODES)
 #: Modes whose value0 is the angle: entering one restarts the angle from 0, as the sensor does.
 _ANGLE_MODES = ('GYRO-ANG', 'GYRO-G&A')
+#: After a mode switch the UART sensor keeps sending the previous mode's messages until it has
+#: switched (tipbot_fw.ev3io; ev3dev waits for new-mode data up to 50 ms per try): for this
+#: long after the switch the fake keeps the previous mode's record in bin_data and value<N>.
+GYRO_MODE_SWITCH_S = 0.05
 
 #: ev3dev's max_speed (tacho counts/s) per driver.
 MAX_SPEED = {'lego-ev3-l-motor': 1050, 'lego-ev3-m-motor': 1560, 'lego-nxt-motor': 1020}
@@ -256,6 +260,7 @@ class _Gyro(_Device):
         self.angle = 0             # the sensor's integrated angle, in its own frame
         self.angle_ref = 0         # angle when an angle mode was last entered
         self.rate = 0
+        self.stale_until_s = None  # the previous mode's record stays until then (a mode switch)
 
 
 class FakeEV3(object):
@@ -266,10 +271,14 @@ class FakeEV3(object):
     None}`` unplugs C. ``gyro_port=None`` leaves out the gyro; ``gyro_driver`` can name another
     sensor. ``root_dir=None`` makes (and :meth:`close` removes) a temporary directory; a given
     ``root_dir`` must be empty or absent and is left in place.
+
+    Time: a driver that passes the time to :meth:`poll` gets the gyro's mode switch delay
+    (``gyro_mode_switch_s``: the previous mode's readings for that long after the switch);
+    without it the switch is immediate.
     """
 
     def __init__(self, root_dir=None, battery_v=8.0, motors=None, gyro_port='in2',
-                 gyro_driver='lego-ev3-gyro'):
+                 gyro_driver='lego-ev3-gyro', gyro_mode_switch_s=GYRO_MODE_SWITCH_S):
         self._own_root = root_dir is None
         if root_dir is None:
             root_dir = tempfile.mkdtemp(prefix='fake-ev3-')
@@ -282,6 +291,8 @@ class FakeEV3(object):
         #: Client mistakes the real driver would reject with EINVAL (the value is not applied).
         self.errors = []
         self._fds = []
+        self.gyro_mode_switch_s = gyro_mode_switch_s
+        self.now_s = None          # the time of the latest poll(t_s), if the driver gives one
 
         spec = dict(DEFAULT_MOTORS)
         spec.update(motors or {})
@@ -463,6 +474,10 @@ class FakeEV3(object):
         }[g.mode]
 
     def _publish_gyro(self, g):
+        if g.stale_until_s is not None:
+            if self.now_s is not None and self.now_s < g.stale_until_s:
+                return
+            g.stale_until_s = None
         values = self._gyro_values(g)
         # bin_data first: it is what Ev3Devices reads, in one pwrite for both values.
         self._put_bytes(g.attrs['bin_data'], struct.pack('<%dh' % len(values), *values))
@@ -567,10 +582,15 @@ class FakeEV3(object):
         if mode in _ANGLE_MODES:
             g.angle_ref = g.angle
         g.mode = mode
+        if self.now_s is not None and self.gyro_mode_switch_s > 0:
+            g.stale_until_s = self.now_s + self.gyro_mode_switch_s
         self._publish_gyro_mode(g)
 
-    def poll(self):
-        """Apply what clients wrote since the last poll; return {motor port: MotorState}."""
+    def poll(self, t_s=None):
+        """Apply what clients wrote since the last poll; return {motor port: MotorState}.
+        ``t_s``: the driver's time now (s), for the gyro's mode switch delay."""
+        if t_s is not None:
+            self.now_s = t_s
         for m in self._motors.values():
             self._poll_motor(m)
         if self._gyro is not None:

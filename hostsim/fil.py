@@ -15,7 +15,7 @@ plant's 1 ms step). The plant integrates with the scenario's ``plant_method`` at
 ``advance`` per piece of constant input (hostsim.plant).
 
 Start: like a person holding the robot, the world keeps the plant at the scenario's start
-pose while the firmware calibrates the gyro (about 1 s, with the scenario's gyro bias and
+pose while the firmware calibrates the gyro (about 1.1 s, with the scenario's gyro bias and
 noise), and releases it when the control loop starts; t = 0 in the results is that
 release. The firmware is told the start pose (config ``start_pose_rad``). What differs from
 the linear simulation, as on the robot:
@@ -40,6 +40,7 @@ from hostsim.scenario import disturbance_at
 from hostsim.sensors import SensorModel
 from tipbot_fw import config as fw_config
 from tipbot_fw import logfile
+from tipbot_fw.calibration import sample_counts
 from tipbot_fw.clock import VirtualClock
 from tipbot_fw.devices import MemoryDevices
 from tipbot_fw.gains import gains_from_dict, load_gains
@@ -75,8 +76,8 @@ def firmware_config(sc, rw_m, overrides=None):
 
 def calibration_end_s(config, ts_s):
     """When the session's gyro calibration takes its last sample (see tipbot_fw.calibration)."""
-    n = max(2, int(round(config["gyro_calibration"]["duration_s"] / ts_s)))
-    return (n - 1) * ts_s
+    settle, n = sample_counts(config["gyro_calibration"], ts_s)
+    return (settle + n - 1) * ts_s
 
 
 class World:
@@ -113,7 +114,7 @@ class World:
         enc, gyro, volts = self.sensors.read(x, t_s)
         self.readings = (enc, gyro)
         if self.fake is not None:
-            self.fake.poll()   # client writes (mode, commands) take effect before the next read
+            self.fake.poll(t_s)   # client writes (mode, commands) take effect before the next read
             self.fake.set_readings(enc, gyro, volts)
 
     def read(self):

@@ -6,6 +6,7 @@ import numpy as np
 
 import fw_support as S
 from tipbot_fw import logfile
+from tipbot_fw.calibration import sample_counts
 from tipbot_fw.clock import VirtualClock
 from tipbot_fw.devices import MemoryDevices
 from tipbot_fw.logfile import col, read_log
@@ -167,10 +168,21 @@ def test_low_battery_refuses_to_start(tmp_path):
     assert '6.20 V is below limits.min_battery_v = 6.5 V' in h['stop_message']
 
 
+def calibration_source(dev, sample):
+    """dev's readings during calibration: sample(i, used) -> (gyro angle, rate) for the i-th read,
+    ``used`` False for the settle samples the calibration reads and does not use."""
+    settle, _ = sample_counts(S.fw_config()['gyro_calibration'], S.load().ts_s)
+    reads = iter(range(100000))
+
+    def source():
+        i = next(reads)
+        return (0, 0, 0, 0), sample(i - settle, i >= settle)
+    dev.source = source
+
+
 def test_gyro_moving_during_calibration_refuses_to_start(tmp_path):
     dev = MemoryDevices()
-    rates = iter([0, 1, 0, 9] + [0] * 1000)
-    dev.source = lambda: ((0, 0, 0, 0), (0, next(rates)))
+    calibration_source(dev, lambda i, used: (0, [0, 1, 0, 9][i] if used and i < 4 else 0))
     code, header, path, _ = session(tmp_path, dev)
     h, _ = assert_stopped_and_logged(dev, path, 'calibration', 4, header)
     assert dev.write_calls == 0
@@ -178,12 +190,35 @@ def test_gyro_moving_during_calibration_refuses_to_start(tmp_path):
 
 
 def test_gyro_turning_steadily_during_calibration_refuses_to_start(tmp_path):
+    # 50 deg/s in rate and angle alike: as consistent as a bias, but no held robot's bias
     dev = MemoryDevices()
-    angle = iter(range(1000))
-    dev.source = lambda: ((0, 0, 0, 0), (next(angle) // 4, 50))
+    calibration_source(dev, lambda i, used: (i // 4, 50))
     code, header, path, _ = session(tmp_path, dev)
     h, _ = assert_stopped_and_logged(dev, path, 'calibration', 4, header)
-    assert 'gyro angle changed by' in h['stop_message']
+    assert 'gyro read a steady 50.0 deg/s during calibration (gyro_calibration.max_bias_dps is 5)' \
+        in h['stop_message']
+
+
+def test_gyro_knocked_between_two_samples_refuses_to_start(tmp_path):
+    # the angle jumps 4 deg in the middle of the window; no rate sample saw the knock
+    dev = MemoryDevices()
+    calibration_source(dev, lambda i, used: (4 if i >= 10 else 0, 0))
+    code, header, path, _ = session(tmp_path, dev)
+    h, _ = assert_stopped_and_logged(dev, path, 'calibration', 4, header)
+    assert 'gyro angle changed by 4 deg during calibration where its drift of 0.00 deg/s explains 0.0 deg' \
+        in h['stop_message']
+
+
+def test_a_drifting_gyro_starts_and_the_old_mode_samples_are_not_used(tmp_path):
+    # 3 deg/s of bias drift the angle 3 deg a second; before the mode switch took effect the
+    # gyro still reported an angle counted since it was plugged in, and no rate
+    dev = MemoryDevices()
+    calibration_source(dev, lambda i, used: (int(3 * 0.005 * i) if used else 1800, 3 if used else 0))
+    code, header, path, _ = session(tmp_path, dev, duration_s=0.1)
+    h, _ = assert_stopped_and_logged(dev, path, 'completed', 0, header)
+    cal = h['calibration']
+    assert cal['gyro_bias_dps'] == 3.0 and cal['settle_samples'] == 20 and cal['samples'] == 20
+    assert abs(cal['unexplained_angle_deg']) < 1
 
 
 def test_header_has_what_a_replay_needs(tmp_path):

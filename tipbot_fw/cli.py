@@ -109,8 +109,10 @@ def _gyro(devices, config):
     except safety.SafetyStop as e:
         _say(str(e))
         return None, e.exit_code
-    print('gyro bias {:.3f} deg/s (rate {}..{} deg/s, angle change {} deg over {} samples)'.format(
-        cal.gyro_bias_dps, cal.rate_min_dps, cal.rate_max_dps, cal.angle_change_deg, cal.samples))
+    print('gyro bias {:.3f} deg/s (rate {}..{} deg/s, angle change {} deg in {:.2f} s, {:.1f} deg of it not '
+          'explained by the bias; {} samples)'.format(
+              cal.gyro_bias_dps, cal.rate_min_dps, cal.rate_max_dps, cal.angle_change_deg, cal.window_s,
+              cal.unexplained_angle_deg, cal.samples))
     return cal, safety.EXIT_OK
 
 

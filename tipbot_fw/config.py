@@ -18,9 +18,13 @@ Every field is validated; errors name the file and the dotted field path. Fields
   filters.gyro_rate_cutoff_hz                  low-pass of the gyro rate (th1_dot)
   filters.disturbance_cutoff_hz                low-pass of the disturbance estimate w^ before the
                                                control law uses it (tipbot_fw.detector); null = none
-  gyro_calibration.duration_s                  stillness window for the bias at start
+  gyro_calibration.settle_s                    gyro samples read and not used at start (the first
+                                               ones after the mode switch may be the old mode's)
+  gyro_calibration.duration_s                  then the stillness window for the bias
   gyro_calibration.max_rate_spread_dps         max - min rate allowed in that window
-  gyro_calibration.max_angle_change_deg        sensor angle change allowed in that window
+  gyro_calibration.max_bias_dps                largest |mean rate| taken for a bias (more: turning)
+  gyro_calibration.max_angle_change_deg        angle change allowed in that window beyond the
+                                               drift the mean rate explains (tipbot_fw.calibration)
   gyro_bias_time_constant_s                    slow bias tracking while running; null = off (the
                                                default: see tipbot_fw.signals for why)
   gyro_bias_quiet_dps                          the tracking learns only from samples whose
@@ -119,8 +123,10 @@ SPEC = {
     'filters.encoder_rate_cutoff_hz': _number(0, 1000),
     'filters.gyro_rate_cutoff_hz': _number(0, 1000),
     'filters.disturbance_cutoff_hz': _number(0, 1000, allow_null=True),
+    'gyro_calibration.settle_s': _number(0, 10, lo_open=False),
     'gyro_calibration.duration_s': _number(0, 10),
     'gyro_calibration.max_rate_spread_dps': _number(0, 100, lo_open=False),
+    'gyro_calibration.max_bias_dps': _number(0, 100, lo_open=False),
     'gyro_calibration.max_angle_change_deg': _number(0, 90, lo_open=False),
     'gyro_bias_time_constant_s': _number(0, 3600, allow_null=True),
     'gyro_bias_quiet_dps': _number(0, 100),
