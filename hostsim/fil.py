@@ -42,6 +42,7 @@ from tipbot_fw import config as fw_config
 from tipbot_fw import logfile
 from tipbot_fw.calibration import sample_counts
 from tipbot_fw.clock import VirtualClock
+from tipbot_fw.cues import QUIET as QUIET_CUES
 from tipbot_fw.devices import MemoryDevices
 from tipbot_fw.gains import gains_from_dict, load_gains
 from tipbot_fw.session import run_session
@@ -255,7 +256,7 @@ def run_firmware(sc, gains_path=None, gains_doc=None, sysfs=True, log_path=None,
             world.devices = devices
         try:
             code, header = run_session(devices, gains, config, clock, log_path=log_path,
-                                       duration_s=sc["duration_s"], say=lambda msg: None)
+                                       duration_s=sc["duration_s"], say=lambda msg: None, cues=QUIET_CUES)
         finally:
             devices.close()
         rows = logfile.read_log(log_path)[1] if keep_rows and os.path.exists(log_path) else None

@@ -8,6 +8,7 @@ import fw_support as S
 from tipbot_fw import logfile
 from tipbot_fw.calibration import sample_counts
 from tipbot_fw.clock import VirtualClock
+from tipbot_fw.cues import OwnerCues
 from tipbot_fw.devices import MemoryDevices
 from tipbot_fw.logfile import col, read_log
 from tipbot_fw.session import run_session
@@ -254,3 +255,52 @@ def test_polarity_changes_only_the_sign_of_what_the_motor_sees(tmp_path):
     np.testing.assert_array_equal(a[:, col('enc_r')], -b[:, col('enc_r')])
     np.testing.assert_array_equal(a[:, col('duty_r')], -b[:, col('duty_r')])
     assert np.abs(a[:, col('duty_r')]).max() > 0
+
+
+class ReadCountingStream(object):
+    """A text stream that notes how many device reads had been made at each line written."""
+
+    def __init__(self, dev):
+        self.dev, self.lines = dev, []
+
+    def write(self, text):
+        self.lines.append((text.strip(), self.dev.raw_reads))
+
+    def flush(self):
+        pass
+
+
+def test_the_owner_is_told_to_hold_then_to_let_go_right_before_the_first_tick(tmp_path):
+    dev = MemoryDevices()           # held exactly at the start pose: zero state, no wheel drives
+    stream = ReadCountingStream(dev)
+    path = str(tmp_path / 'run.log')
+    run_session(dev, S.load(), S.fw_config(), VirtualClock(), log_path=path, duration_s=0.1, say=lambda m: None,
+                cues=OwnerCues(streams=[stream]))
+    settle, n = sample_counts(S.fw_config()['gyro_calibration'], S.load().ts_s)
+    assert stream.lines == [('tipbot: HOLD the robot still and upright: calibrating the gyro (0.2 s)', 0),
+                            ('tipbot: LET GO NOW: balancing', settle + n)]
+    rows = read_log(path)[1]
+    assert len(rows) == 20 and not rows[:, col('duty_r'):col('duty_3') + 1].any()   # no wheel ever drove
+
+
+def test_no_let_go_when_the_calibration_refuses(tmp_path):
+    dev = MemoryDevices()
+    calibration_source(dev, lambda i, used: (0, 20 * (i % 2)))
+    stream = ReadCountingStream(dev)
+    code, _ = run_session(dev, S.load(), S.fw_config(), VirtualClock(), say=lambda m: None,
+                          cues=OwnerCues(streams=[stream]))
+    assert code == 4 and [text.split(':')[1].split()[0] for text, _ in stream.lines] == ['HOLD']
+
+
+def test_cues_go_to_stdout_and_stderr_once_each_or_once_for_one_terminal(tmp_path, monkeypatch):
+    out, err = open(str(tmp_path / 'out'), 'w'), open(str(tmp_path / 'err'), 'w')
+    monkeypatch.setattr('sys.stdout', out)
+    monkeypatch.setattr('sys.stderr', err)
+    OwnerCues().let_go()
+    same = open(str(tmp_path / 'out'), 'a')
+    monkeypatch.setattr('sys.stderr', same)
+    OwnerCues().let_go()
+    for f in (out, err, same):
+        f.close()
+    assert (tmp_path / 'out').read_text() == 'tipbot: LET GO NOW: balancing\n' * 2
+    assert (tmp_path / 'err').read_text() == 'tipbot: LET GO NOW: balancing\n'

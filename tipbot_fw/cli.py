@@ -1,15 +1,14 @@
 """Command line: python3 -m tipbot_fw {run,check,calibrate,bench,identify} ... (exit codes: tipbot_fw.safety)."""
 import argparse
 import sys
-import time
 
-from tipbot_fw import identify, safety
+from tipbot_fw import identify, logfile, safety
 from tipbot_fw.bench import brick_bench
 from tipbot_fw.calibration import calibrate_gyro
 from tipbot_fw.clock import MonotonicClock
 from tipbot_fw.config import ConfigError, load_config
 from tipbot_fw.gains import GainsError, load_gains
-from tipbot_fw.session import run_session
+from tipbot_fw.session import log_refused_start, run_session
 
 CHECK_PERIOD_S = 0.005   # gyro sampling period for check/calibrate (no gains file involved)
 
@@ -44,7 +43,8 @@ def _parser():
     sp.add_argument('--gains', metavar='FILE', required=True)
     sp.add_argument('--duration', metavar='S', type=_positive_float, help='stop after S seconds')
     sp.add_argument('--log', metavar='FILE',
-                    help='run log (default tipbot-YYYYmmdd-HHMMSS.log in the current directory)')
+                    help='run log (default tipbot-YYYYmmdd-HHMMSS.log in logs/ if the current directory '
+                    'holds tipbot_fw/, else in the current directory)')
     common(sp)
     sp = sub.add_parser('check', help='devices, drivers, battery, gyro stillness; never drives motors')
     common(sp)
@@ -63,13 +63,15 @@ def _parser():
 
 
 def _open_devices(config, sysfs_root):
-    """-> Ev3Devices, or None after saying why (missing device, wrong driver, no ev3dev2)."""
+    """-> (Ev3Devices, None), or (None, why) after saying why (missing device, wrong driver,
+    no ev3dev2)."""
     try:
         from tipbot_fw.ev3io import Ev3Devices   # late: needs python-ev3dev2, only on the robot
-        return Ev3Devices(config, sysfs_root=sysfs_root)
+        return Ev3Devices(config, sysfs_root=sysfs_root), None
     except Exception as e:
-        _say('devices: {}: {}'.format(type(e).__name__, e))
-        return None
+        why = '{}: {}'.format(type(e).__name__, e)
+        _say('devices: ' + why)
+        return None, why
 
 
 def main(argv=None):
@@ -85,8 +87,11 @@ def main(argv=None):
     except (ConfigError, GainsError) as e:
         _say('refused to start: {}'.format(e))
         return safety.EXIT_INVALID
-    devices = _open_devices(config, args.sysfs_root)
+    devices, why = _open_devices(config, args.sysfs_root)
     if devices is None:
+        if args.command == 'run':     # a run's every exit but a refused command line writes a log
+            log_refused_start(_log_path(args), gains, config, args.duration,
+                              safety.DevicesMissing(' '.join(why.split())), say=_say)
         return safety.EXIT_DEVICES
     try:
         return COMMANDS[args.command](args, config, gains, devices)
@@ -94,8 +99,14 @@ def main(argv=None):
         devices.close()
 
 
+def _log_path(args):
+    if not args.log:
+        args.log = logfile.default_path('tipbot')
+    return args.log
+
+
 def _run(args, config, gains, devices):
-    log_path = args.log or time.strftime('tipbot-%Y%m%d-%H%M%S.log')
+    log_path = _log_path(args)
     _say('running {} ({} variant, ts {} s), log {}'.format(gains.path, gains.model_variant,
                                                          gains.ts_s, log_path))
     code, _ = run_session(devices, gains, config, MonotonicClock(), log_path=log_path,

@@ -493,7 +493,8 @@ def add_arguments(sp):
                     help='shortest time between two position reads (default 0: as fast as possible)')
     sp.add_argument('--yes', action='store_true', help='do not ask for confirmation')
     sp.add_argument('--log', metavar='FILE',
-                    help='identify log (default identify-PORT-YYYYmmdd-HHMMSS.log in the current directory)')
+                    help='identify log (default identify-PORT-YYYYmmdd-HHMMSS.log in logs/ if the current '
+                    'directory holds tipbot_fw/, else in the current directory)')
 
 
 def _role_of(config, port):
@@ -554,7 +555,7 @@ def main_identify(args, say=_say, stdin=None, clock=None, io=os):
         except KeyboardInterrupt:
             say('interrupted: the motor was not driven')
             return EXIT_INTERRUPT
-        log_path = args.log or time.strftime('identify-{}-%Y%m%d-%H%M%S.log'.format(motor.port))
+        log_path = args.log or logfile.default_path('identify-' + motor.port)
         role = _role_of(config, motor.port)
         extra = {'role': role, 'sysfs_path': motor.path,
                  'expected_driver': config['drivers'].get(role) if role else None}

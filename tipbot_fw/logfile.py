@@ -5,6 +5,7 @@ Python 3.5-safe; the reader (read_log) is what host tools use.
 import json
 import os
 import struct
+import time
 import zlib
 
 import numpy as np
@@ -141,6 +142,18 @@ class LogBuffer(object):
         blocks = list(self.file_blocks(polarity))
         rows = np.concatenate(blocks) if blocks else np.zeros((0, N_COLUMNS))
         return self.first_tick(), rows
+
+
+def default_path(kind):
+    """Where a log goes without --log: KIND-YYYYmmdd-HHMMSS.log in logs/ when the current
+    directory holds the firmware package (a checkout, or the brick's install directory, whose
+    logs/ `make logs` fetches), else in the current directory (the launcher runs in logs/)."""
+    name = time.strftime(kind + '-%Y%m%d-%H%M%S.log')
+    if os.path.isdir('tipbot_fw'):
+        if not os.path.isdir('logs'):
+            os.makedirs('logs')
+        return os.path.join('logs', name)
+    return name
 
 
 def columns_header(columns=COLUMNS):

@@ -3,8 +3,9 @@
 Exit codes of `python3 -m tipbot_fw` (also in README/cli help):
   0   run reached --duration (or check/calibrate succeeded)
   1   unexpected error (a bug): motors stopped, log written, traceback printed
-  2   invalid command line, config or gains: refused to start, devices not opened
-  3   devices missing or with the wrong driver: refused to start, motors untouched
+  2   invalid command line, config or gains: refused to start, devices not opened, no log
+  3   devices missing or with the wrong driver: refused to start, motors untouched, (run) a
+      log of the header only, naming them
   4   refused to start: battery below limits.min_battery_v, the gyro moved during calibration,
       or (identify) the owner did not confirm that the motor is free to turn
   5   a device read or write failed during the run
@@ -62,6 +63,11 @@ class LowBattery(SafetyStop):
 class CalibrationError(SafetyStop):
     reason = 'calibration'
     exit_code = EXIT_REFUSED
+
+
+class DevicesMissing(SafetyStop):
+    reason = 'devices'
+    exit_code = EXIT_DEVICES
 
 
 class Terminated(BaseException):

@@ -13,6 +13,7 @@ from tipbot_fw import logfile
 from tipbot_fw.calibration import calibrate_gyro
 from tipbot_fw.config import motor_polarity
 from tipbot_fw.core import Core
+from tipbot_fw.cues import OwnerCues
 from tipbot_fw.loop import ControlLoop
 from tipbot_fw.safety import EXIT_ERROR, EXIT_OK, DeviceFailure, LowBattery, SignalGuard, outcome
 
@@ -42,12 +43,14 @@ def _say(msg):
 
 
 def run_session(devices, gains, config, clock, log_path=None, duration_s=None,
-                realtime_priority=None, say=_say):
+                realtime_priority=None, say=_say, cues=None):
     """Balance until duration_s (None: until stopped). -> (exit code, log header dict).
 
     Never raises; devices.stop_all() is called on every exit. The log (if log_path) is written
-    on every exit too, with the rows recorded so far.
+    on every exit too, with the rows recorded so far. ``cues`` (tipbot_fw.cues.OwnerCues by
+    default) tells the owner to hold the robot, then to let go.
     """
+    cues = OwnerCues() if cues is None else cues
     if realtime_priority is None:
         realtime_priority = config['realtime_priority']
     header = base_header(gains, config, duration_s)
@@ -69,13 +72,16 @@ def run_session(devices, gains, config, clock, log_path=None, duration_s=None,
             if bv < lim['min_battery_v']:
                 raise LowBattery('battery at {:.2f} V is below limits.min_battery_v = {} V: charge it'.format(
                     bv, lim['min_battery_v']))
-            cal = calibrate_gyro(devices, clock, gains.ts_s, config['gyro_calibration'])
+            cal_config = config['gyro_calibration']
+            cues.hold_still(cal_config['settle_s'] + cal_config['duration_s'])
+            cal = calibrate_gyro(devices, clock, gains.ts_s, cal_config)
             header['calibration'] = cal.as_dict()
             core = Core(gains, config, cal.gyro_bias_dps, devices.counts_per_rot)
             loop = ControlLoop(devices, core, clock, log, gains.ts_s, bv,
                                battery_period_s=config['battery_period_s'],
                                max_consecutive_overruns=lim['max_consecutive_overruns'],
                                duration_s=duration_s, realtime_priority=realtime_priority)
+            cues.let_go()
             loop.run()
         except BaseException as e:
             error = e
@@ -111,6 +117,20 @@ def run_session(devices, gains, config, clock, log_path=None, duration_s=None,
         return code, header
     finally:
         guard.restore()
+
+
+def log_refused_start(log_path, gains, config, duration_s, error, say=_say):
+    """The log of a run refused before any device was set up (error: a SafetyStop): the
+    header only, with why. Never raises."""
+    header = base_header(gains, config, duration_s)
+    header['stop_reason'], header['exit_code'], header['stop_message'] = outcome(error)
+    header['stop_wall_time_s'] = time.time()
+    header['first_tick'] = header['ticks'] = 0
+    try:
+        logfile.write_log(log_path, header, np.zeros((0, logfile.N_COLUMNS)))
+        say('stopped: {} (exit {}, no ticks); log {}'.format(header['stop_message'], header['exit_code'], log_path))
+    except Exception as e:     # nothing runs: report, never raise
+        say('could not write the log {}: {!r}'.format(log_path, e))
 
 
 def _log_rows(config, ts_s, duration_s):
