@@ -22,11 +22,14 @@ PYTEST_ARGS ?=
 TICKS    ?= 1000
 # make deploy HOST=robot@ev3dev.local [REMOTE_DIR=tipbot] [DEPLOY_VARIANT=physical] [CONFIG=my.json]
 #             [SERVICE=1] [SSH='ssh -F my_ssh_config']      (tools/deploy; host needs only python3 + ssh)
+#             [REMOVE_CONFIG=1: remove the brick's config.json] [FORCE=1: deploy gains not robust]
 # make run HOST=... [DURATION=10] [RUN_ARGS='--sysfs-root DIR']; make logs HOST=... [LOGS_DIR=dir]
 HOST     ?=
 REMOTE_DIR ?= tipbot
 DEPLOY_VARIANT ?= $(if $(VARIANT),$(VARIANT),physical)
 CONFIG   ?=
+REMOVE_CONFIG ?=
+FORCE    ?=
 SERVICE  ?=
 SSH      ?= ssh
 STAGE    ?= build/ev3
@@ -55,7 +58,8 @@ help:
 	@echo "  bench        simulation real-time factor; instructions per control tick on the virtual brick"
 	@echo "  brick        set up the virtual brick for 'make bench' (root, ~2 min)"
 	@echo "  stage        lay out what deploy copies, in $(STAGE) (DEPLOY_VARIANT=, CONFIG=)"
-	@echo "  deploy       copy what changed to the brick over ssh (HOST=robot@ev3dev.local; SERVICE=1)"
+	@echo "  deploy       copy what changed to the brick over ssh (HOST=robot@ev3dev.local; CONFIG=file,"
+	@echo "               REMOVE_CONFIG=1, DEPLOY_VARIANT=physical-ts0.010, FORCE=1, SERVICE=1)"
 	@echo "  run          run the controller on the brick over ssh (HOST=...; DURATION=s)"
 	@echo "  logs         fetch the brick's new run logs into logs/<host>/ (HOST=...)"
 	@echo "  clean        remove build products and caches; distclean also removes $(VENV)"
@@ -104,20 +108,22 @@ brick:
 # What goes onto the brick, laid out as in its install directory (for inspection; deploy
 # stages in memory and writes the same tree here).
 stage:
-	$(DEPLOY) stage --variant $(DEPLOY_VARIANT) $(if $(CONFIG),--config $(CONFIG)) --stage $(STAGE)
+	$(DEPLOY) stage --variant $(DEPLOY_VARIANT) $(if $(CONFIG),--config $(CONFIG)) --stage $(STAGE) \
+	  $(if $(FORCE),--force)
 
 define need_host
 	@test -n "$(HOST)" || { echo "usage: make $@ HOST=robot@ev3dev.local" >&2; exit 2; }
 endef
 
 # Sends only what changed since the last deploy (sha256 manifest, tar over one ssh connection;
-# the brick needs nothing but sh and tar), removes what is no longer deployed, keeps logs/,
-# then checks the brick's Python, numpy and ev3dev2 (install.sh --check). SERVICE=1 also
-# installs the systemd unit.
+# the brick needs nothing but sh and tar), removes what is no longer deployed, keeps logs/ and
+# the brick's config.json (REMOVE_CONFIG=1 removes it), then checks the brick's Python, numpy
+# and ev3dev2 (install.sh --check). SERVICE=1 also installs the systemd unit. Gains whose file
+# says they do not stabilize the model(s) they must also hold are refused unless FORCE=1.
 deploy:
 	$(need_host)
 	$(DEPLOY) deploy $(CONNECT) --variant $(DEPLOY_VARIANT) $(if $(CONFIG),--config $(CONFIG)) \
-	  --stage $(STAGE) $(if $(SERVICE),--service)
+	  --stage $(STAGE) $(if $(SERVICE),--service) $(if $(REMOVE_CONFIG),--remove-config) $(if $(FORCE),--force)
 
 # Runs the launcher on the brick in the foreground and reports its exit status (Ctrl-C: the
 # firmware stops the motors and writes its log).

@@ -92,11 +92,21 @@ def test_plan_sends_only_changes_chmods_modes_and_removes_what_was_deployed_befo
     sha = lambda b: hashlib.sha256(b).hexdigest()  # noqa: E731
     actual = {"a.py": (sha(b"a"), 0o644), "tipbot": (sha(b"#!x"), 0o644),
               "config.json": (sha(b"c"), 0o644), "mine.txt": (sha(b"m"), 0o644)}
-    previous = {"a.py": (sha(b"a"), 0o644), "config.json": (sha(b"c"), 0o644)}
+    actual["gone.py"] = (sha(b"g"), 0o644)
+    previous = {"a.py": (sha(b"a"), 0o644), "config.json": (sha(b"c"), 0o644), "gone.py": (sha(b"g"), 0o644)}
     send, chmod, remove = deploy_tool.plan(files, previous, actual)
     assert send == ["new.json"]
     assert chmod == {"tipbot": 0o755}
-    assert remove == ["config.json"]          # the owner's own mine.txt is left alone
+    assert remove == ["gone.py"]        # no longer deployed; the owner's config.json and mine.txt stay
+    assert deploy_tool.plan(files, previous, actual, remove_config=True)[2] == ["config.json", "gone.py"]
+    assert deploy_tool.plan(files, {}, actual, remove_config=True)[2] == ["config.json"]
+
+
+def test_make_run_explains_each_exit_status_in_full():
+    meanings = deploy_tool.exit_meanings()
+    assert sorted(meanings) == [0, 1, 2, 3, 4, 5, 6, 7, 130, 143]
+    assert meanings[4].endswith("or (identify) the owner did not confirm that the motor is free to turn")
+    assert meanings[3].endswith("(run) a log of the header only, naming them")
 
 
 def test_remote_dir_is_under_home_unless_absolute():
@@ -224,9 +234,9 @@ class Brick(object):
         """The brick's python3 from now on."""
         _python_wrapper(os.path.join(self.bin, "python3"), python, extra)
 
-    def make(self, target, *args, timeout=120):
+    def make(self, target, *args, timeout=120, repo=REPO):
         """Run `make TARGET HOST=testbrick ...` in the repo; -> CompletedProcess (text, merged output)."""
-        cmd = ["make", "--no-print-directory", "-C", REPO, target, "HOST=testbrick",
+        cmd = ["make", "--no-print-directory", "-C", repo, target, "HOST=testbrick",
                "SSH=ssh -F %s" % self.ssh_config, "REMOTE_DIR=%s" % self.install_dir,
                "STAGE=%s" % os.path.join(self.root, "stage")] + list(args)
         return subprocess.run(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
@@ -277,8 +287,8 @@ def test_deploy_copies_only_changes_and_installs_a_launcher_brickman_can_start(b
     assert p.returncode == 0, p.stdout
     assert "deploy: 0 files changed\n" in p.stdout
 
-    # a config is one new file; a changed brick-side file is repaired; dropping the config
-    # removes it from the brick
+    # a config is one new file; a changed brick-side file is repaired; a deploy without CONFIG=
+    # keeps the owner's config on the brick; only REMOVE_CONFIG=1 removes it
     config = tmp_path / "robot.json"
     config.write_text('{"realtime_priority": 0}\n')
     os.chmod(launcher, 0o644)
@@ -286,14 +296,46 @@ def test_deploy_copies_only_changes_and_installs_a_launcher_brickman_can_start(b
     assert p.returncode == 0, p.stdout
     assert "deploy: 2 files changed (config.json, tipbot;" in p.stdout
     assert os.stat(launcher).st_mode & stat.S_IXUSR
+    on_brick = os.path.join(brick.install_dir, "config.json")
     p = brick.make("deploy")
+    assert p.returncode == 0 and "deploy: 0 files changed\n" in p.stdout, p.stdout
+    assert "the brick's own config.json kept (REMOVE_CONFIG=1 removes it)" in p.stdout
+    with open(on_brick) as f:
+        assert f.read() == '{"realtime_priority": 0}\n'
+    p = brick.make("deploy", "REMOVE_CONFIG=1")
     assert "deploy: 0 files changed, 1 removed (config.json)" in p.stdout, p.stdout
-    assert not os.path.exists(os.path.join(brick.install_dir, "config.json"))
+    assert not os.path.exists(on_brick)
 
     p = brick.make("deploy", "DEPLOY_VARIANT=paper")
     assert "deploy: 1 file changed (gains.json;" in p.stdout, p.stdout
     with open(os.path.join(REPO, "gains", "paper.json"), "rb") as f, \
             open(os.path.join(brick.install_dir, "gains.json"), "rb") as g:
+        assert f.read() == g.read()
+
+
+def test_deploy_refuses_gains_that_do_not_hold_the_other_model_unless_forced(brick, tmp_path):
+    checkout = tmp_path / "checkout"
+    for d in ("tipbot_fw", "ev3", "gains", "tools"):
+        shutil.copytree(os.path.join(REPO, d), str(checkout / d), ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copy(os.path.join(REPO, "Makefile"), str(checkout / "Makefile"))
+    # the gains for a 10 ms loop: their own file, which records that they cannot hold the paper model
+    p = subprocess.run(["make", "--no-print-directory", "-C", REPO, "gains", "TS=0.010", "VARIANT=physical",
+                        "GAINS_DIR=%s" % (checkout / "gains")], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                       universal_newlines=True, timeout=300)
+    assert p.returncode == 0, p.stdout
+    where = "REMOTE_DIR=%s" % (tmp_path / "tipbot")
+    p = brick.make("deploy", "DEPLOY_VARIANT=physical-ts0.010", where, repo=str(checkout))
+    assert p.returncode != 0
+    refusal = [line for line in p.stdout.splitlines() if line.startswith("deploy: ")]
+    assert len(refusal) == 1, p.stdout
+    assert refusal[0].startswith("deploy: not deployed: gains/physical-ts0.010.json does not stabilize the paper "
+                                 "model it must also hold (robust_to_models.stabilized is false, worst spectral radius ")
+    assert refusal[0].endswith("deploy it anyway with FORCE=1 (tools/deploy --force)")
+    assert not os.path.exists(str(tmp_path / "tipbot"))                   # nothing reached the brick
+    p = brick.make("deploy", "DEPLOY_VARIANT=physical-ts0.010", "FORCE=1", where, repo=str(checkout))
+    assert p.returncode == 0, p.stdout
+    with open(str(checkout / "gains" / "physical-ts0.010.json"), "rb") as f, \
+            open(str(tmp_path / "tipbot" / "gains.json"), "rb") as g:
         assert f.read() == g.read()
 
 
