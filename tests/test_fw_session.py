@@ -3,6 +3,7 @@ import os
 import signal
 
 import numpy as np
+import pytest
 
 import fw_support as S
 from tipbot_fw import logfile
@@ -181,33 +182,23 @@ def calibration_source(dev, sample):
     dev.source = source
 
 
-def test_gyro_moving_during_calibration_refuses_to_start(tmp_path):
+@pytest.mark.parametrize('sample, message', [
+    # the rate jumps: the robot moved
+    (lambda i, used: (0, [0, 1, 0, 9][i] if used and i < 4 else 0), 'gyro rate varied by 9 deg/s'),
+    # 50 deg/s in rate and angle alike: as consistent as a bias, but no held robot's bias
+    (lambda i, used: (i // 4, 50), 'gyro read a steady 50.0 deg/s during calibration '
+                                   '(gyro_calibration.max_bias_dps is 5)'),
+    # the angle jumps 4 deg in the middle of the window; no rate sample saw the knock
+    (lambda i, used: (4 if i >= 10 else 0, 0), 'gyro angle changed by 4 deg during calibration where its '
+                                               'drift of 0.00 deg/s explains 0.0 deg'),
+], ids=['jolt', 'steady-turn', 'knock'])
+def test_a_robot_moved_during_calibration_refuses_to_start(tmp_path, sample, message):
     dev = MemoryDevices()
-    calibration_source(dev, lambda i, used: (0, [0, 1, 0, 9][i] if used and i < 4 else 0))
+    calibration_source(dev, sample)
     code, header, path, _ = session(tmp_path, dev)
     h, _ = assert_stopped_and_logged(dev, path, 'calibration', 4, header)
     assert dev.write_calls == 0
-    assert 'gyro rate varied by 9 deg/s' in h['stop_message']
-
-
-def test_gyro_turning_steadily_during_calibration_refuses_to_start(tmp_path):
-    # 50 deg/s in rate and angle alike: as consistent as a bias, but no held robot's bias
-    dev = MemoryDevices()
-    calibration_source(dev, lambda i, used: (i // 4, 50))
-    code, header, path, _ = session(tmp_path, dev)
-    h, _ = assert_stopped_and_logged(dev, path, 'calibration', 4, header)
-    assert 'gyro read a steady 50.0 deg/s during calibration (gyro_calibration.max_bias_dps is 5)' \
-        in h['stop_message']
-
-
-def test_gyro_knocked_between_two_samples_refuses_to_start(tmp_path):
-    # the angle jumps 4 deg in the middle of the window; no rate sample saw the knock
-    dev = MemoryDevices()
-    calibration_source(dev, lambda i, used: (4 if i >= 10 else 0, 0))
-    code, header, path, _ = session(tmp_path, dev)
-    h, _ = assert_stopped_and_logged(dev, path, 'calibration', 4, header)
-    assert 'gyro angle changed by 4 deg during calibration where its drift of 0.00 deg/s explains 0.0 deg' \
-        in h['stop_message']
+    assert message in h['stop_message']
 
 
 def test_a_drifting_gyro_starts_and_the_old_mode_samples_are_not_used(tmp_path):
