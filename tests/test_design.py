@@ -229,10 +229,11 @@ def cpu_flags():
     return set()
 
 
-def test_make_gains_leaves_the_committed_files_untouched_under_other_blas_kernels(tmp_path):
+def test_make_gains_leaves_the_committed_files_untouched_under_other_blas_kernels(tmp_path, designs):
     """The BLAS of another CPU (forced with OPENBLAS_CORETYPE, which must be set before numpy
     loads: one process per kernel) regenerates numbers that agree within the tolerances, so
-    the gains command leaves the files byte for byte as committed."""
+    the gains command leaves the files byte for byte as committed. (``designs``: the symbolic
+    model's cache is built once, here, not in every process.)"""
     import platform
     flags = cpu_flags()
     kernels = [k for k, flag in BLAS_KERNELS.get(platform.machine(), ()) if flag in flags]
@@ -259,7 +260,7 @@ def test_make_gains_leaves_the_committed_files_untouched_under_other_blas_kernel
     assert len(cores) >= min(2, len(kernels)), cores     # the kernels really differed
 
 
-def test_make_gains_with_another_period_writes_its_own_file(tmp_path):
+def test_make_gains_with_another_period_writes_its_own_file(tmp_path, designs):
     gains_dir = tmp_path / "gains"
     shutil.copytree(DEFAULT_OUT_DIR, str(gains_dir))
     p = subprocess.run(["make", "--no-print-directory", "-C", REPO_ROOT, "gains", "TS=0.010", "VARIANT=physical",
