@@ -82,11 +82,11 @@ test: venv
 	exit $$rc
 
 gains: venv
-	$(VPY) -m hostsim.gains $(if $(TS),--ts $(TS)) $(if $(VARIANT),--variant $(VARIANT)) $(if $(PARAMS),--params $(PARAMS)) \
+	$(VPY) -m hostsim gains $(if $(TS),--ts $(TS)) $(if $(VARIANT),--variant $(VARIANT)) $(if $(PARAMS),--params $(PARAMS)) \
 	  $(if $(GAINS_DIR),--out-dir $(GAINS_DIR))
 
 paper-check: venv
-	$(VPY) -m hostsim.paper_check
+	$(VPY) -m hostsim paper-check
 
 sim: venv
 	$(VPY) -m hostsim sim $(SIM_ARGS)
@@ -99,7 +99,7 @@ replay: venv
 # with Debian armel's Python 3.11 + numpy 1.24: an approximation of the brick's Python 3.5 +
 # numpy 1.12, see README). Without the brick it says how to make one.
 bench: venv
-	$(VPY) -m hostsim.bench
+	$(VPY) -m hostsim bench-sim
 	$(VPY) tools/tick-cost --ticks $(TICKS) -- python3 -m tipbot_fw.bench
 
 brick:

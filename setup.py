@@ -25,8 +25,9 @@ setup(
     name="tipbot",
     version=version(),
     description="Firmware and host tools for a LEGO EV3 three-link balancing robot",
-    packages=["tipbot_fw", "hostsim"],
-    package_data={"tipbot_fw": ["*.json"], "hostsim": ["data/*.json"]},
+    packages=["tipbot_fw", "hostsim", "hostsim.model", "hostsim.world", "hostsim.sim",
+              "hostsim.studies", "hostsim.logs"],
+    package_data={"tipbot_fw": ["*.json"], "hostsim.model": ["data/*.json"]},
     python_requires=">=3.5",
     install_requires=["numpy>=1.12"],
     extras_require={

@@ -1,27 +1,34 @@
-"""``python -m hostsim COMMAND ...``: the host tools' command line.
+"""``python -m hostsim VERB ...``: every host tool, one command line.
 
-Each command lives in its own module with a ``main(argv) -> exit status``; the table below
-maps names to modules, imported only when that command runs (so a command's heavy imports,
-or a module not written yet, cost nothing to the others). To add one (``replay``,
-``identify``, ...): write hostsim/<module>.py with main(argv) and list it here.
+Each verb's module has a ``main(argv) -> exit status`` whose parser is named
+``python -m hostsim VERB``; the table maps verbs to modules, imported only when that verb runs,
+so one tool's heavy imports cost the others nothing. To add a tool: write its main(argv), with
+help on every option (tests/test_sim_cli.py checks), and list it here.
 """
 import importlib
 import sys
 
+# verb: (module, one line for the list of verbs)
 COMMANDS = {
-    "run": ("hostsim.runner", "run one scenario file: metrics.json, plots, summary"),
-    "sim": ("hostsim.sim", "the paper's scenarios + robustness summary -> out/sim/ (make sim)"),
-    "montecarlo": ("hostsim.montecarlo", "Monte Carlo robustness of the firmware in the loop"),
-    "roa": ("hostsim.roa", "region of attraction (largest recovered initial angles)"),
-    "bench": ("hostsim.bench", "simulation speed: real-time factor, Monte Carlo throughput"),
-    "replay": ("hostsim.replay", "replay a robot log on the host"),
-    "identify": ("hostsim.identify", "identify parameters from logs"),
+    "gains": ("hostsim.model.gains", "design the gains and write gains/<variant>.json (make gains)"),
+    "paper-check": ("hostsim.model.paper_check", "the paper variant against Appendix C (make paper-check)"),
+    "pd": ("hostsim.model.pd", "the Appendix D PD baseline designed for a gains file"),
+    "motor-sim": ("hostsim.world.motor_sim", "a simulated motor behind a fake EV3 (identify logs without a brick)"),
+    "fake-robot": ("hostsim.sim.fake_robot", "the simulated robot behind a fake EV3 tree, in real time"),
+    "run": ("hostsim.studies.runner", "run one scenario file: metrics.json, plots, summary"),
+    "sim": ("hostsim.studies.sim_study", "the paper's scenarios + robustness summary -> out/sim/ (make sim)"),
+    "montecarlo": ("hostsim.studies.montecarlo", "Monte Carlo robustness of the firmware in the loop"),
+    "roa": ("hostsim.studies.roa", "region of attraction (largest recovered initial angles)"),
+    "bench-sim": ("hostsim.studies.sim_bench", "simulation speed: real-time factor, Monte Carlo throughput"),
+    "replay": ("hostsim.logs.replay", "replay a robot log on the host (make replay)"),
+    "identify": ("hostsim.logs.identify", "identify motor parameters from identify logs"),
 }
 
 
 def usage():
-    lines = ["usage: python -m hostsim COMMAND [ARGS...]", "", "commands:"]
-    lines += ["  %-11s %s" % (name, text) for name, (_, text) in COMMANDS.items()]
+    lines = ["usage: python -m hostsim VERB [ARGS...]   (python -m hostsim VERB --help for its options)",
+             "", "verbs:"]
+    lines += ["  %-12s %s" % (name, text) for name, (_, text) in COMMANDS.items()]
     return "\n".join(lines)
 
 
@@ -30,19 +37,11 @@ def main(argv=None):
     if not argv or argv[0] in ("-h", "--help", "help"):
         print(usage())
         return 0
-    name = argv[0]
-    if name not in COMMANDS:
-        print("python -m hostsim: unknown command %r\n\n%s" % (name, usage()), file=sys.stderr)
+    verb = argv[0]
+    if verb not in COMMANDS:
+        print("python -m hostsim: unknown verb %r\n\n%s" % (verb, usage()), file=sys.stderr)
         return 2
-    module_name = COMMANDS[name][0]
-    try:
-        module = importlib.import_module(module_name)
-    except ModuleNotFoundError as exc:
-        if exc.name != module_name:
-            raise
-        print("python -m hostsim %s: not available yet (%s is not written)" % (name, module_name), file=sys.stderr)
-        return 2
-    return module.main(argv[1:])
+    return importlib.import_module(COMMANDS[verb][0]).main(argv[1:])
 
 
 if __name__ == "__main__":

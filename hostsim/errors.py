@@ -1,11 +1,9 @@
 """Errors raised by the host-side tools.
 
 Each carries a message that names the file, field or matrix at fault, so a command
-line tool can print it as one line and exit non-zero.
+line tool can print it as one line and exit non-zero. Files are checked field by field
+with tipbot_fw.fields, so every bad field reads ``<file>: field <dotted.name> <problem>``.
 """
-
-
-import json
 
 
 class TipbotError(Exception):
@@ -18,15 +16,3 @@ class ParameterError(TipbotError):
 
 class DesignError(TipbotError):
     """A gain design cannot be carried out (uncontrollable, singular weight, ...)."""
-
-
-def read_json(path, what, error):
-    """The parsed JSON of a user's file; ``error`` (a TipbotError class) names the file and
-    says whether it could not be read (``what``: e.g. "parameters file") or is not JSON."""
-    try:
-        with open(path) as f:
-            return json.load(f)
-    except OSError as exc:
-        raise error("%s: cannot read %s: %s" % (path, what, exc.strerror or exc))
-    except ValueError as exc:
-        raise error("%s: not valid JSON: %s" % (path, exc))

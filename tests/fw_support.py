@@ -11,6 +11,7 @@ import math
 import numpy as np
 import scipy.linalg
 
+from tipbot_fw.bench import synthetic_gains_doc
 from tipbot_fw.clock import VirtualClock
 from tipbot_fw.config import config_from_overrides
 from tipbot_fw.devices import MemoryDevices
@@ -18,8 +19,6 @@ from tipbot_fw.gains import ACTUATED_INPUTS, gains_from_dict
 
 TS = 0.005
 R_W = 0.034
-STATE_NAMES = ['d_r', 'd_l', 'th1', 'th2', 'th3', 'd_r_dot', 'd_l_dot', 'th1_dot', 'th2_dot', 'th3_dot']
-SI_UNITS = ['m', 'm', 'rad', 'rad', 'rad', 'm/s', 'm/s', 'rad/s', 'rad/s', 'rad/s']
 CM_SCALE = np.array([100.0, 100.0, 1, 1, 1, 100.0, 100.0, 1, 1, 1])   # x_cm = S x_SI
 
 
@@ -47,7 +46,8 @@ def plant(ts=TS):
 
 
 def gains_doc(ts=TS, u_max_v=7.6, detector_pole=0.2):
-    """A valid schema-1 gains document (SI units) for plant(ts)."""
+    """A valid schema-1 gains document (SI units) for plant(ts): the LQR (scipy's DARE) and the
+    firmware bench's recipe for the rest (tipbot_fw.bench.synthetic_gains_doc)."""
     A, B = plant(ts)
     act = ACTUATED_INPUTS
     Ba = B[:, act]
@@ -57,25 +57,10 @@ def gains_doc(ts=TS, u_max_v=7.6, detector_pole=0.2):
     P = scipy.linalg.solve_discrete_are(A, Ba, Q, Ra)
     K = np.zeros((5, 10))
     K[act, :] = np.linalg.solve(Ra + Ba.T.dot(P).dot(Ba), Ba.T.dot(P).dot(A))
-    G_w = np.zeros((5, 10))
-    G_w[act, :] = np.linalg.pinv(Ba)          # w^ = E^+ nu recovers an input disturbance
-    L2 = Ba.dot(G_w[act, :])                  # projection on range(E): (L2 C - I) E = 0
-    abar = (np.eye(10) - L2).dot(A)
-    L1 = abar - detector_pole * np.eye(10)    # Abar - L1 C = pole * I
-    K_w = np.diag([1.0, 1.0, 0.0, 1.0, 1.0])  # cancels an input disturbance
-    rho = float(np.max(np.abs(np.linalg.eigvals(A - B.dot(K)))))
-    return {
-        'schema_version': 1, 'model_variant': 'physical', 'ts_s': ts,
-        'state_names': list(STATE_NAMES), 'state_units': list(SI_UNITS),
-        'input_names': ['u_r', 'u_l', 'u_th1', 'u_th2', 'u_th3'], 'input_units': ['V'] * 5,
-        'actuated_inputs': list(act),
-        'A': A.tolist(), 'B': B.tolist(), 'C': np.eye(10).tolist(), 'E': B.tolist(),
-        'K': K.tolist(), 'K_w': K_w.tolist(), 'L1': L1.tolist(), 'L2': L2.tolist(),
-        'G_w': G_w.tolist(), 'detector_eigenvalues': [detector_pole] * 10,
-        'closed_loop_spectral_radius': rho, 'Q': Q.tolist(), 'R': R.tolist(),
-        'u_max_v': u_max_v, 'parameters': {'wheel_radius_m': R_W}, 'parameters_sha256': '0' * 64,
-        'model_options': {'synthetic': True}, 'generator': 'tests/fw_support.py',
-    }
+    return synthetic_gains_doc(A, B, K, ts, Q=Q, R=R, u_max_v=u_max_v, detector_pole=detector_pole,
+                               generator='tests/fw_support.py',
+                               parameters={'wheel_radius_m': R_W}, parameters_sha256='0' * 64,
+                               model_options={'synthetic': True})
 
 
 def to_cm(doc):
@@ -128,7 +113,7 @@ class Lockstep(object):
     integer deg/s plus `gyro_bias_dps`, gyro angle in integer degrees.
     """
 
-    def __init__(self, gains_doc_=None, x0=None, battery_v=8.0, gyro_bias_dps=0, disturbance=None):
+    def __init__(self, x0=None, battery_v=8.0, gyro_bias_dps=0, disturbance=None):
         self.A, self.B = plant()
         self.x = np.zeros(10) if x0 is None else np.array(x0, dtype=float)
         self.bias = gyro_bias_dps

@@ -1,7 +1,7 @@
 """What runs on the brick, for the tests that check it statically (Python 3.5, numpy 1.12)."""
 import os
+from conftest import REPO
 
-REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 ROBOT_DIRS = ("tipbot_fw", "ev3")
 
 

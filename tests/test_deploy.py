@@ -3,7 +3,7 @@
 The "brick" is this machine: a throwaway sshd on 127.0.0.1 (own host and user keys, config and
 authorized_keys in a temporary directory) whose sessions see a `python3` that is this test's
 interpreter. The firmware runs there through the deployed launcher, in its own process, against
-a fake EV3 tree that hostsim.fake_robot drives in real time from the simulated robot.
+a fake EV3 tree that `python -m hostsim fake-robot` drives in real time from the simulated robot.
 tools/deploy's planning is also tested without ssh.
 """
 import importlib.machinery
@@ -23,8 +23,8 @@ import threading
 import time
 
 import pytest
+from conftest import PAPER_GAINS, PHYSICAL_GAINS, REPO
 
-REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SHEBANG = b"#!/usr/bin/env python3\n"
 
 
@@ -51,7 +51,7 @@ def test_stage_holds_what_the_brick_needs_with_launcher_mode_shebang_and_lf(tmp_
     data, mode = files["tipbot"]
     assert data.startswith(SHEBANG) and b"\r" not in data and mode & stat.S_IXUSR
     assert files["install.sh"][1] & stat.S_IXUSR
-    with open(os.path.join(REPO, "gains", "physical.json"), "rb") as f:
+    with open(PHYSICAL_GAINS, "rb") as f:
         assert files["gains.json"][0] == f.read()
     # the manifest depends on the content only: staging again gives the same bytes
     assert deploy_tool.stage_files("physical", None)[deploy_tool.MANIFEST] == files[deploy_tool.MANIFEST]
@@ -308,7 +308,7 @@ def test_deploy_copies_only_changes_and_installs_a_launcher_brickman_can_start(b
 
     p = brick.make("deploy", "DEPLOY_VARIANT=paper")
     assert "deploy: 1 file changed (gains.json;" in p.stdout, p.stdout
-    with open(os.path.join(REPO, "gains", "paper.json"), "rb") as f, \
+    with open(PAPER_GAINS, "rb") as f, \
             open(os.path.join(brick.install_dir, "gains.json"), "rb") as g:
         assert f.read() == g.read()
 
@@ -381,11 +381,11 @@ def test_deploy_installs_the_systemd_unit_on_request(brick):
 
 # ------------------------------------------------------------------ run, logs, replay
 class FakeRobot(object):
-    """python -m hostsim.fake_robot in its own process; ready once the tree exists."""
+    """python -m hostsim fake-robot in its own process; ready once the tree exists."""
 
     def __init__(self, root, scenario, config, duration_s=60):
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "hostsim.fake_robot", "--root", root, "--scenario", scenario,
+            [sys.executable, "-m", "hostsim", "fake-robot", "--root", root, "--scenario", scenario,
              "--write-config", config, "--duration", str(duration_s)],
             cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, universal_newlines=True)
         self.lines = []
@@ -445,7 +445,7 @@ def test_run_on_the_brick_fetch_the_log_and_replay_it_exactly(brick, tmp_path):
     assert "logs: 1 new log from testbrick" in p.stdout, p.stdout
     logs = glob.glob(os.path.join(dest, "tipbot-*.log"))
     assert len(logs) == 1
-    with open(os.path.join(REPO, "gains", "physical.json"), "rb") as f:
+    with open(PHYSICAL_GAINS, "rb") as f:
         sha = hashlib.sha256(f.read()).hexdigest()
     assert os.path.isfile(os.path.join(dest, "gains-%s.json" % sha[:16]))
     p = brick.make("logs", "LOGS_DIR=%s" % dest)
@@ -459,7 +459,7 @@ def test_run_on_the_brick_fetch_the_log_and_replay_it_exactly(brick, tmp_path):
     assert rows[:, logfile.col("gyro_rate")].std() > 0
 
     plots = str(tmp_path / "plots")
-    rp = subprocess.run([sys.executable, "-m", "hostsim.replay", logs[0], "--out", plots], cwd=REPO,
+    rp = subprocess.run([sys.executable, "-m", "hostsim", "replay", logs[0], "--out", plots], cwd=REPO,
                         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, universal_newlines=True, timeout=120)
     assert rp.returncode == 0, rp.stdout
     assert "replay with the logged gains (%s" % os.path.join(dest, "gains-") in rp.stdout
@@ -479,8 +479,8 @@ def test_run_and_logs_before_any_deploy_say_to_deploy_first(brick, tmp_path):
 
 
 def test_the_real_time_fake_robot_holds_the_robot_until_the_firmware_drives_a_motor(tmp_path):
-    from hostsim.fake_robot import RealTimeRobot
-    from hostsim.scenario import parse_scenario
+    from hostsim.sim.fake_robot import RealTimeRobot
+    from hostsim.sim.scenario import parse_scenario
     from tipbot_fw.ev3io import Ev3Devices
 
     sc = parse_scenario({"x0_si": [0, 0, 0.05, 0, 0, 0, 0, 0, 0, 0]}, "<test>")

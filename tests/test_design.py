@@ -1,6 +1,7 @@
 """Gain design: LQR, finite horizon with disturbance, robust detector, errors, exported files."""
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -8,19 +9,15 @@ import sys
 import numpy as np
 import pytest
 
-from hostsim import design
-from hostsim.errors import DesignError
-from hostsim.gains import (DEFAULT_OUT_DIR, compare_documents, compare_with_file, design_gains, main as gains_main,
-                           output_name, to_document)
-from hostsim.paper_check import TOLERANCE, cross_spectral_radii, run as paper_check_run
-from hostsim.params import DEFAULT_PARAMS_PATH, REPO_ROOT, load_params
+from hostsim.model import design
+from hostsim.errors import DesignError, ParameterError
+from hostsim.model.gains import (DEFAULT_OUT_DIR, compare_documents, compare_with_file, design_gains,
+                                 main as gains_main, output_name, to_document)
+from hostsim.model.paper_check import TOLERANCE, cross_spectral_radii, run as paper_check_run
+from hostsim.model.params import DEFAULT_PARAMS_PATH, load_params
+from conftest import PARAMS_FILE, REPO
 
 VARIANTS = ("paper", "physical")
-
-
-@pytest.fixture(scope="module")
-def params():
-    return load_params()
 
 
 @pytest.fixture(scope="module")
@@ -47,20 +44,20 @@ def test_both_gains_stabilize_both_models(designs):
 def test_detector_condition_and_eigenvalues(designs, variant):
     g = designs[variant]
     n = 10
-    residual = (g["L2"] @ g["C"] - np.eye(n)) @ g["E"]
+    residual = (g.L2 @ g.C - np.eye(n)) @ g.E
     assert np.abs(residual).max() < 1e-12
-    abar = (np.eye(n) - g["L2"] @ g["C"]) @ g["A"]
-    eig = np.linalg.eigvals(abar - g["L1"] @ g["C"])
+    abar = (np.eye(n) - g.L2 @ g.C) @ g.A
+    eig = np.linalg.eigvals(abar - g.L1 @ g.C)
     assert np.allclose(np.sort(eig.real), design.DEFAULT_DETECTOR_POLE, atol=1e-9)
     assert np.abs(eig.imag).max() < 1e-9
     # L2 = E G_w: the detector's L2 term is the disturbance estimate pushed through E.
-    assert np.allclose(g["L2"], g["E"] @ g["G_w"], atol=1e-12)
+    assert np.allclose(g.L2, g.E @ g.G_w, atol=1e-12)
 
 
 def test_detector_converges_under_constant_disturbance(designs):
     """Linear simulation of Section 6: the estimate and w^ converge despite w."""
     g = designs["paper"]
-    a, b, c, e = g["A"], g["B"], g["C"], g["E"]
+    a, b, c, e = g.A, g.B, g.C, g.E
     rng = np.random.default_rng(1)
     x = rng.normal(scale=[1, 1, 0.05, 0.05, 0.05, 1, 1, 0.1, 0.1, 0.1])
     xh = np.zeros(10)
@@ -71,10 +68,10 @@ def test_detector_converges_under_constant_disturbance(designs):
         x_next = a @ x + b @ u + e @ w
         y_next = c @ x_next
         nu = y_next - c @ a @ xh - c @ b @ u
-        w_hat = g["G_w"] @ nu
-        xh = a @ xh + b @ u + g["L1"] @ (y - c @ xh) + g["L2"] @ nu
+        w_hat = g.G_w @ nu
+        xh = a @ xh + b @ u + g.L1 @ (y - c @ xh) + g.L2 @ nu
         x, y = x_next, y_next
-        u = -g["K"] @ xh
+        u = -g.K @ xh
     assert np.abs(xh - x).max() < 1e-9
     assert np.allclose(w_hat, w, atol=1e-9)
 
@@ -82,10 +79,10 @@ def test_detector_converges_under_constant_disturbance(designs):
 def test_finite_horizon_converges_to_steady_state_gain(designs):
     """Section 5.2's 800-step recursion reaches the DARE gain (paper README)."""
     g = designs["paper"]
-    k_seq, ff, _ = design.finite_horizon_lqr(g["A"], g["B"], g["Q"], g["R"], g["Q"], horizon=800)
+    k_seq, ff, _ = design.finite_horizon_lqr(g.A, g.B, g.Q, g.R, g.Q, horizon=800)
     # The slowest closed-loop mode (|eig| 0.9937) leaves about 1e-4 after 800 steps.
-    assert np.allclose(k_seq[0], g["K"], rtol=2e-3, atol=1e-4 * np.abs(g["K"]).max())
-    assert not np.allclose(k_seq[-1], g["K"], rtol=0.1)  # the end of the horizon differs
+    assert np.allclose(k_seq[0], g.K, rtol=2e-3, atol=1e-4 * np.abs(g.K).max())
+    assert not np.allclose(k_seq[-1], g.K, rtol=0.1)  # the end of the horizon differs
     assert np.all(ff == 0)
 
 
@@ -94,34 +91,34 @@ def test_steady_state_feedforward_is_k_w(designs):
     g = designs["physical"]
     w = np.array([1.0, 1.0, 0.0, 0.0, 0.0])
     horizon = 20000
-    k_seq, ff, _ = design.finite_horizon_lqr(g["A"], g["B"], g["Q"], g["R"], g["P"],
-                                             w_seq=np.tile(w, (horizon, 1)), e_mat=g["E"])
-    assert np.allclose(ff[0], -g["K_w"] @ w, rtol=1e-6, atol=1e-9)
+    k_seq, ff, _ = design.finite_horizon_lqr(g.A, g.B, g.Q, g.R, g.P,
+                                             w_seq=np.tile(w, (horizon, 1)), e_mat=g.E)
+    assert np.allclose(ff[0], -g.K_w @ w, rtol=1e-6, atol=1e-9)
     assert np.abs(ff[0]).max() > 0.1  # the disturbance is not negligible
 
 
 def test_k_w_reduces_the_cost_of_a_constant_disturbance(designs):
     g = designs["physical"]
-    a, b, q, r = g["A"], g["B"], g["Q"], g["R"]
+    a, b, q, r = g.A, g.B, g.Q, g.R
     w = np.array([1.0, 1.0, 0.0, 0.0, 0.0])
 
     def cost(kw):
         x = np.zeros(10)
         total = 0.0
         for _ in range(4000):
-            u = -g["K"] @ x - kw @ w
+            u = -g.K @ x - kw @ w
             total += x @ q @ x + u @ r @ u
-            x = a @ x + b @ u + g["E"] @ w
+            x = a @ x + b @ u + g.E @ w
         return total
 
-    assert cost(g["K_w"]) < 0.9 * cost(np.zeros((5, 5)))
+    assert cost(g.K_w) < 0.9 * cost(np.zeros((5, 5)))
 
 
 def test_other_sampling_period(params):
     g = design_gains("physical", params, ts_s=0.010)
     doc = to_document(g)
     assert doc["ts_s"] == 0.01
-    assert np.max(np.abs(g["closed_loop_eigenvalues"])) < 1
+    assert np.max(np.abs(g.closed_loop_eigenvalues)) < 1
     # At 10 ms no wheel weight makes the physical gain hold the paper's model; the file says so.
     assert doc["robust_to_models"]["stabilized"] is False
     assert doc["robust_to_models"]["worst_spectral_radius"] > 1
@@ -129,39 +126,39 @@ def test_other_sampling_period(params):
 
 def test_singular_r_is_refused(designs):
     g = designs["paper"]
-    r = g["R"].copy()
+    r = g.R.copy()
     r[3, 3] = 0.0
     with pytest.raises(DesignError, match="R is singular"):
-        design.dlqr(g["A"], g["B"], g["Q"], r, (0, 1, 3, 4))
+        design.dlqr(g.A, g.B, g.Q, r, (0, 1, 3, 4))
 
 
 def test_dead_input_column_is_refused(designs):
     g = designs["paper"]
-    b = g["B"].copy()
+    b = g.B.copy()
     b[:, 4] = 0.0
     with pytest.raises(DesignError, match="input column 4 of B is zero"):
-        design.dlqr(g["A"], b, g["Q"], g["R"], (0, 1, 3, 4))
+        design.dlqr(g.A, b, g.Q, g.R, (0, 1, 3, 4))
 
 
 def test_unsolvable_detector_condition_is_refused(designs):
     g = designs["paper"]
-    e = g["E"].copy()
+    e = g.E.copy()
     e[:, 3] = e[:, 4]  # two disturbances that act identically cannot be told apart
     with pytest.raises(DesignError, match="not solvable"):
-        design.robust_detector(g["A"], g["B"], g["C"], e, (0, 1, 3, 4))
+        design.robust_detector(g.A, g.B, g.C, e, (0, 1, 3, 4))
 
 
 def test_uncontrollable_system_is_refused(designs):
     g = designs["paper"]
-    a = g["A"].copy()
-    b = g["B"].copy()
+    a = g.A.copy()
+    b = g.B.copy()
     a[9, :] = 0.0
     a[:, 9] = 0.0
     a[9, 9] = 1.2
     b[9, :] = 0.0  # th3' now unreachable and unstable
     b[4, :] = 0.0
     with pytest.raises(DesignError, match="not controllable"):
-        design.dlqr(a, b, g["Q"], g["R"], (0, 1, 3, 4))
+        design.dlqr(a, b, g.Q, g.R, (0, 1, 3, 4))
 
 
 def test_committed_gains_files_agree_with_a_regeneration(designs):
@@ -213,7 +210,7 @@ def corename():
                 return f().decode()
     return "unknown"
 print("blas kernel: " + corename(), flush=True)
-from hostsim.gains import main
+from hostsim.model.gains import main
 sys.exit(main(sys.argv[1:]))
 """
 
@@ -244,7 +241,7 @@ def test_make_gains_leaves_the_committed_files_untouched_under_other_blas_kernel
         shutil.copytree(DEFAULT_OUT_DIR, str(out_dir))
         env = dict(os.environ, OPENBLAS_CORETYPE=kernel, OPENBLAS_VERBOSE="2")
         procs[kernel] = subprocess.Popen([sys.executable, "-c", WITH_KERNEL_NAME, "--out-dir", str(out_dir)],
-                                         cwd=REPO_ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                         cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                          universal_newlines=True)
     cores = set()
     for kernel, proc in procs.items():
@@ -263,7 +260,7 @@ def test_make_gains_leaves_the_committed_files_untouched_under_other_blas_kernel
 def test_make_gains_with_another_period_writes_its_own_file(tmp_path, designs):
     gains_dir = tmp_path / "gains"
     shutil.copytree(DEFAULT_OUT_DIR, str(gains_dir))
-    p = subprocess.run(["make", "--no-print-directory", "-C", REPO_ROOT, "gains", "TS=0.010", "VARIANT=physical",
+    p = subprocess.run(["make", "--no-print-directory", "-C", REPO, "gains", "TS=0.010", "VARIANT=physical",
                         "GAINS_DIR=%s" % gains_dir], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                        universal_newlines=True, timeout=300)
     assert p.returncode == 0, p.stdout
@@ -296,7 +293,7 @@ def test_gains_file_carries_its_provenance(designs):
 
 
 def write_params(tmp_path, mutate):
-    doc = json.load(open(os.path.join(REPO_ROOT, "params", "robot.json")))
+    doc = json.load(open(PARAMS_FILE))
     mutate(doc["parameters"])
     path = tmp_path / "robot.json"
     path.write_text(json.dumps(doc))
@@ -304,19 +301,21 @@ def write_params(tmp_path, mutate):
 
 
 @pytest.mark.parametrize("mutate, message", [
-    (lambda p: p.pop("m2_kg"), "missing parameter 'm2_kg'"),
-    (lambda p: p["l1_m"].update(value="ten"), "parameter 'l1_m' is not a number"),
-    (lambda p: p["m1_kg"].update(value=-0.663), "parameter 'm1_kg' must be positive"),
-    (lambda p: p["rw_m"].update(value=0), "parameter 'rw_m' must be positive"),
-    (lambda p: p.update(colour={"value": 1}), "unknown parameter 'colour'"),
+    (lambda p: p.pop("m2_kg"), "field parameters.m2_kg is missing"),
+    (lambda p: p["l1_m"].update(value="ten"), "field parameters.l1_m must be a number > 0, got 'ten'"),
+    (lambda p: p["m1_kg"].update(value=-0.663), "field parameters.m1_kg must be a number > 0, got -0.663"),
+    (lambda p: p["rw_m"].update(value=0), "field parameters.rw_m must be a number > 0, got 0"),
+    (lambda p: p["joint2_beta_nm_s"].update(value=-1e-4),
+     "field parameters.joint2_beta_nm_s must be a number >= 0, got -0.0001"),
+    (lambda p: p.update(colour={"value": 1}), "field parameters.colour is unknown"),
 ])
 def test_bad_parameter_files_are_named(tmp_path, mutate, message):
     path = write_params(tmp_path, mutate)
-    with pytest.raises(Exception, match=message):
+    with pytest.raises(ParameterError, match="^" + re.escape(path + ": " + message) + "$"):
         load_params(path)
     # The command line ends with one line naming the cause, exit status 2.
-    proc = subprocess.run([sys.executable, "-m", "hostsim.gains", "--params", path, "--out-dir", str(tmp_path)],
-                          capture_output=True, text=True, cwd=REPO_ROOT)
+    proc = subprocess.run([sys.executable, "-m", "hostsim", "gains", "--params", path, "--out-dir", str(tmp_path)],
+                          capture_output=True, text=True, cwd=REPO)
     assert proc.returncode == 2
     assert proc.stderr.strip().count("\n") == 0 and message in proc.stderr
 
@@ -326,5 +325,5 @@ def test_unreadable_parameter_file_is_named(tmp_path):
     assert gains_main(["--params", str(path), "--out-dir", str(tmp_path)]) == 2
     bad = tmp_path / "bad.json"
     bad.write_text("{not json")
-    with pytest.raises(Exception, match="bad.json: not valid JSON"):
+    with pytest.raises(ParameterError, match="bad.json: not valid JSON"):
         load_params(str(bad))

@@ -6,8 +6,8 @@ import stat
 import subprocess
 import sys
 import textwrap
+from conftest import REPO
 
-REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 EV3 = os.path.join(REPO, "ev3")
 
 

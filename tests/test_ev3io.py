@@ -1,4 +1,4 @@
-"""tipbot_fw.ev3io.Ev3Devices against hostsim.fake_ev3: start-up checks and set-up, the per-tick
+"""tipbot_fw.ev3io.Ev3Devices against hostsim.world.fake_ev3: start-up checks and set-up, the per-tick
 I/O budget (5 reads, <= 4 writes), what the fake sees, failures, and a cross-process run."""
 import ast
 import copy
@@ -11,11 +11,11 @@ import textwrap
 import numpy as np
 import pytest
 
-from hostsim.fake_ev3 import FakeEV3
+from hostsim.world.fake_ev3 import FakeEV3
 from tipbot_fw import config as fw_config
 from tipbot_fw.ev3io import (Ev3Devices, Ev3ReadError, Ev3SetupError, Ev3WriteError)
+from conftest import REPO
 
-REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 PORTS = ('outA', 'outB', 'outC', 'outD')
 EV3IO_PATH = os.path.join(REPO, 'tipbot_fw', 'ev3io.py')
 
@@ -290,7 +290,7 @@ def test_close_stops_the_motors_and_closes_every_descriptor(fake, config):
 # ---------------------------------------------------------------- across processes
 WRITER = textwrap.dedent('''
     import os, sys
-    from hostsim.fake_ev3 import FakeEV3
+    from hostsim.world.fake_ev3 import FakeEV3
     root, stop_file = sys.argv[1], sys.argv[2]
     COUNTS = (-1234567, 8, 99999, -5, 0, 7654321, 42, -100000)
     ANGLES = (1, -300, 32000, -32000, 255, -256, 0, 77)
@@ -354,5 +354,5 @@ def test_ev3io_imports_only_what_the_brick_has():
             names.update(a.name.split('.')[0] for a in node.names)
         elif isinstance(node, ast.ImportFrom):
             names.add(node.module.split('.')[0])
-    assert names <= {'logging', 'os', 'struct', 'ev3dev2'}, names
+    assert names <= {'logging', 'os', 'struct', 'ev3dev2', 'tipbot_fw'}, names
 

@@ -1,4 +1,4 @@
-"""hostsim.fake_ev3: layout and formats, python-ev3dev2 accepts the tree unchanged, client
+"""hostsim.world.fake_ev3: layout and formats, python-ev3dev2 accepts the tree unchanged, client
 writes of any length are seen, failure injection, and the sensor models feeding it."""
 import errno
 import os
@@ -14,9 +14,9 @@ from ev3dev2.power import PowerSupply
 from ev3dev2.sensor import INPUT_2
 from ev3dev2.sensor.lego import GyroSensor
 
-from hostsim import fake_ev3
-from hostsim.fake_ev3 import CountingIO, FakeEV3, file_mode, parse_choice
-from hostsim.sensors import SensorModel
+from hostsim.world import fake_ev3
+from hostsim.world.fake_ev3 import CountingIO, FakeEV3, file_mode, parse_choice
+from hostsim.world.sensors import SensorModel
 
 
 @pytest.fixture

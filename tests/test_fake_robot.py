@@ -1,29 +1,29 @@
-"""Starting the firmware against the fake robot (hostsim.fake_robot), as `python3 -m tipbot_fw run`
-does against `python -m hostsim.fake_robot`, but in lock-step: the fake's wall clock is a
+"""Starting the firmware against the fake robot (hostsim.sim.fake_robot), as `python3 -m tipbot_fw
+run` does against `python -m hostsim fake-robot`, but in lock-step: the fake's wall clock is a
 virtual one that the firmware's sleeps advance in 1 ms steps, so the runs are repeatable.
 
 What an owner meets first: the robot starts on the first try with a drifting gyro however long
 the fake (the gyro) has been on, a robot that moved during the calibration is refused, and a
 run never starts with the robot lying on the floor.
 """
-import os
+import dataclasses
 
 import pytest
 
-from hostsim.fake_robot import RealTimeRobot
-from hostsim.scenario import load_scenario
+from hostsim.sim.fake_robot import RealTimeRobot
+from hostsim.sim.scenario import Push, load_scenario
 from tipbot_fw.clock import VirtualClock
 from tipbot_fw.ev3io import Ev3Devices
 from tipbot_fw.gains import load_gains
 from tipbot_fw.session import run_session
+from conftest import PHYSICAL_GAINS
 
-REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 STEP_S = 0.001
 
 
 def fake_robot(tmp_path, bias_dps, **changes):
     sc = load_scenario("section8_physical")   # gyro bias and noise, released near upright
-    sc = dict(sc, sensors=dict(sc["sensors"], gyro_bias_dps=bias_dps), **changes)
+    sc = dataclasses.replace(sc, sensors=dataclasses.replace(sc.sensors, gyro_bias_dps=bias_dps), **changes)
     return RealTimeRobot(sc, str(tmp_path / "sysfs"))
 
 
@@ -43,7 +43,7 @@ def firmware_run(robot, t_start_s, duration_s=0.3, hands=None):
             if t >= t_to:
                 return
 
-    gains = load_gains(os.path.join(REPO, "gains", "physical.json"))
+    gains = load_gains(PHYSICAL_GAINS)
     devices = Ev3Devices(robot.config, sysfs_root=robot.fake.sysfs_root)   # run-direct, GYRO-G&A
     try:
         return run_session(devices, gains, robot.config, VirtualClock(on_sleep=on_sleep),
@@ -94,14 +94,14 @@ def test_a_robot_moved_during_the_calibration_is_refused(tmp_path, hands, messag
 def test_a_run_never_starts_with_the_robot_lying_on_the_floor(tmp_path):
     # the first run lets the robot fall (a kick beyond what the controller can take) and stops
     # on its fall limit; the next run finds the robot picked up and held at the start pose
-    robot = fake_robot(tmp_path, 0.5, pushes=[{"t_s": 0.05, "th1_dot_rad_s": 6.0}])
+    robot = fake_robot(tmp_path, 0.5, pushes=(Push(t_s=0.05, th1_dot_rad_s=6.0),))
     try:
         code, header = firmware_run(robot, 1.0, duration_s=3.0)
         assert code == 6 and header["stop_reason"] == "fall"
         for t in range(50):                       # the fake goes on: the robot lies on the floor
             robot.step(robot.t_s + 0.02)
         assert robot.fallen
-        robot.sc = dict(robot.sc, pushes=[])
+        robot.sc = dataclasses.replace(robot.sc, pushes=())
         code, header = firmware_run(robot, robot.t_s + 0.5, duration_s=1.0)
         assert code == 0, header["stop_message"]
         assert not robot.fallen and abs(robot.plant.x_si[2]) < 0.1

@@ -9,8 +9,8 @@ and the state settles near zero; each control tick does at most 5 sysfs reads an
 import numpy as np
 import pytest
 
-from hostsim.fil import run_firmware
-from hostsim.scenario import parse_scenario
+from hostsim.sim.fil import run_firmware
+from hostsim.sim.scenario import parse_scenario
 
 TICK_READS = ("position", "bin_data")
 BATTERY = "voltage_now"
@@ -32,8 +32,8 @@ def run(request):
 
 
 def test_keeps_the_robot_up_for_10_s_and_settles_near_zero(run):
-    assert run["exit_code"] == 0 and run["stop_reason"] == "completed"
-    t, x = run["t_s"], run["x"]
+    assert run.exit_code == 0 and run.stop_reason == "completed"
+    t, x = run.t_s, run.x
     assert t[-1] == pytest.approx(10.0, abs=0.006)
     assert np.abs(x[:, 2]).max() <= 0.1 + 1e-9              # never leans further than released
     last = x[t >= 8.0]
@@ -42,11 +42,11 @@ def test_keeps_the_robot_up_for_10_s_and_settles_near_zero(run):
     assert np.abs(last[:, 5:7]).max() < 0.1                  # wheels nearly still (m/s)
     assert np.abs(last[:, 0:2] - x[0, 0:2]).max() < 0.15     # within 15 cm of where it started
     # The disturbance did reach the plant (the test is not vacuous).
-    assert np.abs(run["w"][(t >= 2.0 - 1e-9) & (t < 2.5 - 1e-9), 0]).min() == 1.0
+    assert np.abs(run.w[(t >= 2.0 - 1e-9) & (t < 2.5 - 1e-9), 0]).min() == 1.0
 
 
 def test_each_tick_reads_at_most_5_and_writes_at_most_4_sysfs_attributes(run):
-    iterations = run["io_per_iteration"]
+    iterations = run.io_per_iteration
     assert len(iterations) > 1900
     battery_reads = 0
     for ops in iterations:

@@ -7,12 +7,11 @@ import numpy as np
 import pytest
 
 import fw_support as S
-from hostsim.fake_ev3 import FakeEV3
+from hostsim.world.fake_ev3 import FakeEV3
 from tipbot_fw import cli
 from tipbot_fw.logfile import col, read_log
+from conftest import PHYSICAL_GAINS, REPO
 
-REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-PHYSICAL = os.path.join(REPO, 'gains', 'physical.json')
 
 
 @pytest.fixture
@@ -34,15 +33,15 @@ def test_invalid_gains_are_refused_before_any_device(tmp_path, capsys, no_device
 
 def test_invalid_config_is_refused_before_any_device(tmp_path, capsys, no_devices):
     cfg = S.write_json(tmp_path / 'cfg.json', {'limits': {'th1_rad': -1}})
-    assert cli.main(['run', '--gains', PHYSICAL, '--config', cfg]) == 2
+    assert cli.main(['run', '--gains', PHYSICAL_GAINS, '--config', cfg]) == 2
     err = capsys.readouterr().err
-    assert 'refused to start: {}: field limits.th1_rad: must be a number in (0, 1.5], got -1'.format(cfg) in err
+    assert 'refused to start: {}: field limits.th1_rad must be a number in (0, 1.5], got -1'.format(cfg) in err
     assert len(err.strip().splitlines()) == 1
 
 
 def test_bad_command_line(capsys, no_devices):
     with pytest.raises(SystemExit) as e:
-        cli.main(['run', '--gains', PHYSICAL, '--duration', '-3'])
+        cli.main(['run', '--gains', PHYSICAL_GAINS, '--duration', '-3'])
     assert e.value.code == 2
 
 
@@ -56,11 +55,11 @@ def test_missing_devices(tmp_path, capsys):
 def test_a_run_refused_for_missing_devices_writes_a_log_naming_them(tmp_path, capsys):
     with FakeEV3(str(tmp_path / 'sys'), motors={'outC': None}, gyro_port=None) as f:
         log = str(tmp_path / 'run.log')
-        assert cli.main(['run', '--gains', PHYSICAL, '--log', log, '--sysfs-root', f.sysfs_root]) == 3
+        assert cli.main(['run', '--gains', PHYSICAL_GAINS, '--log', log, '--sysfs-root', f.sysfs_root]) == 3
     header, rows = read_log(log)
     assert header['stop_reason'] == 'devices' and header['exit_code'] == 3 and len(rows) == 0
     assert 'port outC: no motor found' in header['stop_message'] and 'port in2: no sensor found' in header['stop_message']
-    assert '\n' not in header['stop_message'] and header['gains']['path'] == PHYSICAL
+    assert '\n' not in header['stop_message'] and header['gains']['path'] == PHYSICAL_GAINS
     assert 'log {}'.format(log) in capsys.readouterr().err
 
 
@@ -93,7 +92,7 @@ def quick_config(tmp_path):
 
 def test_run_on_the_fake_ev3(fake, tmp_path, quick_config, capsys):
     log = str(tmp_path / 'run.log')
-    code = cli.main(['run', '--gains', PHYSICAL, '--config', quick_config, '--duration', '0.1',
+    code = cli.main(['run', '--gains', PHYSICAL_GAINS, '--config', quick_config, '--duration', '0.1',
                      '--log', log, '--sysfs-root', fake.sysfs_root])
     out, err = capsys.readouterr()
     assert code == 0, err

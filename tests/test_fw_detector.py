@@ -1,13 +1,12 @@
 """tipbot_fw.detector: the folded one-matrix step equals the equations; the detector converges."""
-import os
 
 import numpy as np
 
 import fw_support as S
 from tipbot_fw.detector import N_FIXED, fold, fold_full, reference_step
 from tipbot_fw.gains import ACTUATED_INPUTS, load_gains
+from conftest import PHYSICAL_GAINS, gains_path
 
-REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 ACT = ACTUATED_INPUTS
 
 
@@ -51,7 +50,7 @@ def test_folded_matrix_with_the_disturbance_low_pass():
 
 def test_folded_matrix_equals_the_equations_on_the_committed_gains():
     for name in ('physical', 'paper'):
-        g = load_gains(os.path.join(REPO, 'gains', name + '.json'))
+        g = load_gains(gains_path(name))
         for a in (1.0, 0.05):
             used = check_against_reference(g, np.random.RandomState(2), a)
             # the disturbance enters the rates only, so y_k+1's positions drop out of the product
@@ -59,7 +58,7 @@ def test_folded_matrix_equals_the_equations_on_the_committed_gains():
 
 
 def test_only_exactly_zero_columns_are_dropped():
-    g = load_gains(os.path.join(REPO, 'gains', 'physical.json'))
+    g = load_gains(PHYSICAL_GAINS)
     M, used = fold(g)
     full = fold_full(g)
     dropped = [j for j in range(10) if j not in used]

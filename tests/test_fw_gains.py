@@ -1,16 +1,16 @@
 """tipbot_fw.gains: validation with messages naming file and field, conversion to SI, hashing."""
 import hashlib
 import json
-import os
 import re
 
 import numpy as np
 import pytest
 
 import fw_support as S
+from tipbot_fw import logfile
 from tipbot_fw.gains import GainsError, gains_from_dict, load_gains
+from conftest import PAPER_GAINS, PHYSICAL_GAINS
 
-REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
 def doc_with(**changes):
@@ -72,10 +72,10 @@ def test_unknown_schema_version(tmp_path):
 
 
 def test_unknown_units(tmp_path):
-    units = list(S.SI_UNITS)
+    units = list(logfile.STATE_UNITS)
     units[0] = 'mm'
     refused(tmp_path, doc_with(state_units=units), r"field state_units\[0\] is 'mm', expected one of cm, m")
-    units = list(S.SI_UNITS)
+    units = list(logfile.STATE_UNITS)
     units[2] = 'deg'
     refused(tmp_path, doc_with(state_units=units), r"field state_units\[2\] is 'deg', expected one of rad")
     refused(tmp_path, doc_with(input_units=['V', 'V', 'V', 'mV', 'V']), r"field input_units\[3\] is 'mV'")
@@ -144,11 +144,11 @@ def test_cm_file_converts_to_the_same_si_gains():
 
 
 def test_committed_gains_files_pass_validation():
-    phys = load_gains(os.path.join(REPO, 'gains', 'physical.json'), expected_ts_s=0.005)
-    paper = load_gains(os.path.join(REPO, 'gains', 'paper.json'))
+    phys = load_gains(PHYSICAL_GAINS, expected_ts_s=0.005)
+    paper = load_gains(PAPER_GAINS)
     assert phys.state_units_file[0] == 'm' and paper.state_units_file[0] == 'cm'
     # the conversion really happened: in SI the wheel displacement gain is 100x the file's
-    with open(os.path.join(REPO, 'gains', 'paper.json')) as f:
+    with open(PAPER_GAINS) as f:
         K_file = np.array(json.load(f)['K'])
     np.testing.assert_allclose(paper.K[:, 0], 100.0 * K_file[:, 0])
     np.testing.assert_allclose(paper.K[:, 2], K_file[:, 2])

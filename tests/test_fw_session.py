@@ -11,8 +11,10 @@ from tipbot_fw.calibration import sample_counts
 from tipbot_fw.clock import VirtualClock
 from tipbot_fw.cues import OwnerCues
 from tipbot_fw.devices import MemoryDevices
-from tipbot_fw.logfile import col, read_log
+from tipbot_fw.logfile import FLAG_BITS, col, read_log
 from tipbot_fw.session import run_session
+
+FALL, JOINT_LIMIT, OVERRUN = FLAG_BITS['fall'], FLAG_BITS['joint_limit'], FLAG_BITS['overrun']
 
 
 def session(tmp_path, dev, clock=None, duration_s=1.0, config=None):
@@ -60,7 +62,7 @@ def test_fall_stops_the_motors_in_the_same_tick(tmp_path):
     h, rows = assert_stopped_and_logged(dev, path, 'fall', 6, header)
     th1 = rows[:, col('y_th1')]
     assert th1[-1] > 0.6 and np.all(th1[:-1] <= 0.6)       # stopped at the first tick beyond
-    assert int(rows[-1, col('flags')]) & 32
+    assert int(rows[-1, col('flags')]) & FALL
     last_tick = dev.trace[len(dev.trace) - 1 - dev.trace[::-1].index('read_raw'):]
     assert last_tick == ['read_raw', 'stop_all']             # no duty written in that tick
     assert 'fall: th1 = 0.60' in h['stop_message'] or 'fall: th1 = 0.61' in h['stop_message']
@@ -71,7 +73,7 @@ def test_joint_limit_stops_too(tmp_path):
     clock = VirtualClock(on_sleep=TickCounter(dev, lambda n: setattr(dev, 'enc', (0, 0, 0, 5 * n))))
     code, header, path, _ = session(tmp_path, dev, clock)
     h, rows = assert_stopped_and_logged(dev, path, 'joint_limit', 6, header)
-    assert abs(rows[-1, col('y_th3')]) > 1.2 and int(rows[-1, col('flags')]) & 64
+    assert abs(rows[-1, col('y_th3')]) > 1.2 and int(rows[-1, col('flags')]) & JOINT_LIMIT
 
 
 def test_exception_in_the_tick(tmp_path):
@@ -159,7 +161,7 @@ def test_overruns(tmp_path):
     code, header, path, _ = session(tmp_path, dev, clock)
     h, rows = assert_stopped_and_logged(dev, path, 'overruns', 7, header)
     assert h['loop']['max_consecutive_overruns'] == 5
-    assert [int(f) & 16 for f in rows[-5:, col('flags')]] == [16] * 5
+    assert all(int(f) & OVERRUN for f in rows[-5:, col('flags')])
 
 
 def test_low_battery_refuses_to_start(tmp_path):

@@ -15,14 +15,15 @@ import sys
 import numpy as np
 import pytest
 
-from hostsim import gains as host_gains
-from hostsim import identify as I
-from hostsim.motor_sim import TABLE2, one_motor_fake, simulate_identify
+from hostsim.model import gains as host_gains
+from hostsim.logs import identify as I
+from hostsim.model.motors import TABLE2
+from hostsim.world.motor_sim import one_motor_fake, simulate_identify
 from tipbot_fw import cli, logfile
 from tipbot_fw import identify as fw
 from tipbot_fw.gains import load_gains
+from conftest import PARAMS_FILE, REPO
 
-REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 # (Table 2 motor, driver, role, battery volts at rest, seed)
 LARGE = (1, "lego-ev3-l-motor", "right_wheel", 8.2, 1)
@@ -89,7 +90,7 @@ def test_command_line_prints_table_2_plots_and_writes_params(logs, tmp_path, cap
     assert summary["joint3"]["fits"][0]["phi"] == pytest.approx(TABLE2[5].phi, rel=0.05)
 
     doc = json.load(open(out_params))
-    base = json.load(open(os.path.join(REPO, "params", "robot.json")))
+    base = json.load(open(PARAMS_FILE))
     for key, entry in doc["parameters"].items():
         if key.startswith(("right_wheel_", "joint3_")):
             assert entry["source"].startswith("identified from motor"), entry
@@ -119,8 +120,8 @@ def test_roles_given_per_log_and_averaging(logs, tmp_path):
     large = logs["right_wheel"][0]
     # two runs of one motor are averaged; a role per log overrides the logs' own
     fits, groups = I.identify([large, large], roles=["left_wheel"], ra_ohm=8.0)
-    assert len(groups) == 1 and groups[0][0] == "left_wheel" and len(groups[0][2]) == 2
-    assert groups[0][3]["ra_ohm"] == 8.0 and groups[0][4] == "given (--ra-ohm 8)"
+    assert len(groups) == 1 and groups[0].role == "left_wheel" and len(groups[0].fits) == 2
+    assert groups[0].params["ra_ohm"] == 8.0 and groups[0].ra_source == "given (--ra-ohm 8)"
     with pytest.raises(I.IdentifyError, match="--role given 2 times for 1 logs"):
         I.identify([large], roles=["joint2", "joint3"])
 
@@ -165,7 +166,7 @@ def test_other_files_are_refused(tmp_path):
     with pytest.raises(I.IdentifyError, match="corrupted: CRC32"):
         I.load_log(bad)
     # the balance-log replay refuses an identify log instead of misreading it
-    from hostsim import replay
+    from hostsim.logs import replay
     with pytest.raises(replay.ReplayError, match="kind 'identify', not a balance run"):
         replay.load_log(good)
 
@@ -297,7 +298,7 @@ def test_real_time_command_line_against_the_simulated_motor(tmp_path):
     process, `python3 -m tipbot_fw identify` runs in another."""
     root = str(tmp_path / "ev3")
     env = dict(os.environ, PYTHONPATH=REPO)
-    sim = subprocess.Popen([sys.executable, "-m", "hostsim.motor_sim", "--realtime", "--root", root, "--motor", "5",
+    sim = subprocess.Popen([sys.executable, "-m", "hostsim", "motor-sim", "--realtime", "--root", root, "--motor", "5",
                             "--battery-v", "7.8", "--duration", "20"], cwd=REPO, env=env,
                            stdout=subprocess.PIPE, universal_newlines=True)
     try:

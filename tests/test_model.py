@@ -5,15 +5,9 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from hostsim.model import RobotModel, get_variant
-from hostsim.params import load_params
+from hostsim.model.equations import RobotModel, get_variant
 
 VARIANTS = ("paper", "physical")
-
-
-@pytest.fixture(scope="module")
-def params():
-    return load_params()
 
 
 @pytest.fixture(scope="module")

@@ -2,7 +2,6 @@
 the firmware's own code; other gains show what they would have commanded; logs that are
 truncated, corrupted or from another version are refused with a message saying so."""
 import json
-import os
 import shutil
 import struct
 import zlib
@@ -10,20 +9,19 @@ import zlib
 import numpy as np
 import pytest
 
-from hostsim import fil, replay
-from hostsim.scenario import parse_scenario
+from hostsim.sim import fil
+from hostsim.logs import replay
+from hostsim.sim.scenario import parse_scenario
 from tipbot_fw import logfile
+from conftest import PAPER_GAINS, PHYSICAL_GAINS
 
-REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-PHYSICAL = os.path.join(REPO, "gains", "physical.json")
-PAPER = os.path.join(REPO, "gains", "paper.json")
 # Small gyro noise and a push: the readings, estimates and inputs move (not a trivial log).
 SCENARIO = {"name": "replay-test", "duration_s": 1.5, "sensors": {"gyro_noise_dps": 0.3, "gyro_bias_dps": 0.7},
             "pushes": [{"t_s": 0.2, "th1_dot_rad_s": 0.05}], "seed": 7}
 
 
 def simulate(path, sysfs=True, config_overrides=None):
-    sc = parse_scenario(dict(SCENARIO, gains=PHYSICAL))
+    sc = parse_scenario(dict(SCENARIO, gains=PHYSICAL_GAINS))
     fil.run_firmware(sc, log_path=str(path), sysfs=sysfs, config_overrides=config_overrides)
     return str(path)
 
@@ -60,7 +58,7 @@ def test_a_simulated_log_replays_exactly_with_plots(sim_log, tmp_path, capsys):
     code, out, err = run_main(capsys, sim_log, "--out", tmp_path / "plots")
     assert code == 0, err
     assert "replays exactly" in out
-    assert "replay with the logged gains (%s)" % PHYSICAL in out
+    assert "replay with the logged gains (%s)" % PHYSICAL_GAINS in out
     for what in ("inputs", "estimates"):
         png = tmp_path / "plots" / ("tipbot-sim-%s.png" % what)
         assert png.stat().st_size > 10000
@@ -101,11 +99,11 @@ def test_a_replay_that_differs_from_the_log_is_reported(sim_log, tmp_path, capsy
 
 # ------------------------------------------------------------------ other gains
 def test_other_gains_show_what_they_would_have_commanded(sim_log, tmp_path, capsys):
-    code, out, err = run_main(capsys, sim_log, "--gains", PAPER, "--out", tmp_path)
+    code, out, err = run_main(capsys, sim_log, "--gains", PAPER_GAINS, "--out", tmp_path)
     assert code == 0, err
     assert "replays exactly" in out            # the logged gains are still found (gains/)
-    assert "what-if with %s" % PAPER in out
-    r = replay.replay_log(sim_log, gains_path=PAPER)
+    assert "what-if with %s" % PAPER_GAINS in out
+    r = replay.replay_log(sim_log, gains_path=PAPER_GAINS)
     assert max(m for m, _ in r.other_u_diff.values()) > 0.1
     # the raw readings are the log's; what the controller makes of them is not
     raw = [logfile.col(n) for n in ("enc_r", "enc_l", "enc_2", "enc_3", "gyro_angle", "gyro_rate")]
@@ -119,7 +117,7 @@ def test_the_logged_gains_are_found_by_their_hash_next_to_the_log(sim_log, tmp_p
     log = shutil.copy(sim_log, str(d / "tipbot-copy.log"))
     header, _ = logfile.read_log(log)
     fetched = d / ("gains-%s.json" % header["gains"]["sha256"][:16])     # as `make logs` names it
-    shutil.copy(PHYSICAL, str(fetched))
+    shutil.copy(PHYSICAL_GAINS, str(fetched))
     assert replay.replay_log(log).logged_gains_path == str(fetched)
 
 
@@ -131,13 +129,13 @@ def test_unknown_logged_gains_are_asked_for(sim_log, tmp_path, capsys):
     assert code == 2
     assert "recorded with gains sha256 ffffffffffffffff" in err and "pass it with --gains FILE" in err
     # other gains still show what they would have commanded
-    code, out, err = run_main(capsys, log, "--no-plots", "--gains", PAPER)
+    code, out, err = run_main(capsys, log, "--no-plots", "--gains", PAPER_GAINS)
     assert code == 0, err
     assert "exact replay skipped" in out and "what-if with" in out
 
 
 def test_other_gains_with_another_period_are_refused(sim_log, tmp_path, capsys):
-    with open(PHYSICAL) as f:
+    with open(PHYSICAL_GAINS) as f:
         doc = json.load(f)
     doc["ts_s"] = 2 * doc["ts_s"]
     other = tmp_path / "slow.json"

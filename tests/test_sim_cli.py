@@ -1,8 +1,41 @@
-"""`python -m hostsim run/sim`: outputs written, summary printed, errors name the field."""
+"""`python -m hostsim VERB`: every tool behind one command line with help on every option;
+run and sim write their outputs, print the summary, and name a bad field."""
+import argparse
 import json
 import os
+import subprocess
+import sys
 
-from hostsim.__main__ import main
+import pytest
+
+from conftest import REPO
+from hostsim.__main__ import COMMANDS, main
+
+
+class _Parsed(Exception):
+    pass
+
+
+@pytest.mark.parametrize("verb", sorted(COMMANDS))
+def test_every_verb_has_help_on_every_option(verb, monkeypatch):
+    seen = {}
+
+    def parse_args(self, args=None, namespace=None):
+        seen["prog"] = self.prog
+        seen["bare"] = [a.option_strings or [a.dest] for a in self._actions if not a.help]
+        raise _Parsed()
+
+    monkeypatch.setattr(argparse.ArgumentParser, "parse_args", parse_args)
+    with pytest.raises(_Parsed):
+        main([verb])
+    assert seen["prog"] == "python -m hostsim " + verb
+    assert seen["bare"] == [], "options without help: %s" % seen["bare"]
+
+
+def test_the_verbs_run_as_a_module():
+    p = subprocess.run([sys.executable, "-m", "hostsim", "bench-sim", "--help"], cwd=REPO,
+                       capture_output=True, text=True)
+    assert p.returncode == 0 and p.stdout.startswith("usage: python -m hostsim bench-sim")
 
 
 def test_run_writes_metrics_and_plots(tmp_path, capsys):
@@ -33,9 +66,9 @@ def test_run_names_the_bad_field(tmp_path, capsys):
     assert "bad.json" in err and "disturbances[0].w_v" in err
 
 
-def test_unknown_command(capsys):
+def test_unknown_verb(capsys):
     assert main(["fly"]) == 2
-    assert "unknown command 'fly'" in capsys.readouterr().err
+    assert "unknown verb 'fly'" in capsys.readouterr().err
     assert main([]) == 0
     assert "montecarlo" in capsys.readouterr().out
 

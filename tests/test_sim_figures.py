@@ -1,11 +1,15 @@
-"""What the report's figures and tables show (hostsim.plots, hostsim.runner): captions cite the
+"""What the report's figures and tables show (hostsim.studies.plots, hostsim.studies.runner): captions cite the
 paper's figure of their own scenario only, the whole input demand is on the figure, short
 transients get an inset, stop limits are marked, axes and columns carry units."""
+import dataclasses
+
 import numpy as np
 import pytest
 
-from hostsim import metrics, plots, runner
-from hostsim.scenario import parse_scenario
+from hostsim.sim import metrics
+from hostsim.sim.result import RunResult
+from hostsim.sim.scenario import parse_scenario
+from hostsim.studies import plots, runner
 
 U_MAX_V = 7.6
 
@@ -45,9 +49,11 @@ def section7_like_runs(n=800, ts=0.005):
     u_unsat[:, 0] = 2.0 * np.exp(-t)
     u_unsat[1, 0] = 71.5
     u = np.clip(u_unsat, -U_MAX_V, U_MAX_V)
-    lin = dict(t_s=t, x=x, xhat=x + err, u=u, u_unsat=u_unsat)
+    none = np.zeros((n, 5))
+    lin = RunResult(t_s=t, x=x, u=u, w=none, completed=True, xhat=x + err, u_unsat=u_unsat)
     fw_u = np.clip(rng.normal(0, 4, (n, 5)), -U_MAX_V, U_MAX_V)
-    fw = dict(t_s=t, x=x, xhat=x + rng.normal(0, 0.003, (n, 10)), u=fw_u, u_unsat=1.5 * fw_u)
+    fw = RunResult(t_s=t, x=x, u=fw_u, w=none, completed=True, xhat=x + rng.normal(0, 0.003, (n, 10)),
+                   u_unsat=1.5 * fw_u)
     return {"linear/optimal": lin, "firmware/optimal": fw}
 
 
@@ -76,7 +82,7 @@ def test_a_transient_of_a_few_ticks_gets_an_inset(figures):
     assert len(panels) == 10
     assert panels[0].child_axes[0].get_xlim() == pytest.approx((0, 0.05))
     # a slow error gets none: the run's own time axis shows it
-    slow = {k: dict(v, xhat=v["x"] + 0.01 * np.exp(-v["t_s"])[:, None]) for k, v in runs.items()}
+    slow = {k: dataclasses.replace(v, xhat=v.x + 0.01 * np.exp(-v.t_s)[:, None]) for k, v in runs.items()}
     plots.estimation_errors(sc, slow, "errors.png")
     assert not [a for a in figures[1].axes if a.child_axes]
 
@@ -107,7 +113,7 @@ def test_summary_columns_carry_units_and_split_the_estimation_error_by_unit():
     x = np.zeros((400, 10))
     err = np.zeros(10)
     err[[0, 2, 5, 7]] = [0.002, 0.03, 0.4, 3.0]          # m, rad, m/s, rad/s
-    run = dict(t_s=t, x=x, xhat=x + err, u=np.zeros((400, 5)))
+    run = RunResult(t_s=t, x=x, u=np.zeros((400, 5)), w=np.zeros((400, 5)), completed=True, xhat=x + err)
     m = metrics.compute(run, parse_scenario({"duration_s": 2.0}, "<test>"), U_MAX_V)
     assert m["final_est_error_by_unit"] == {"m": 0.002, "rad": 0.03, "m/s": 0.4, "rad/s": 3.0}
     row = runner.summary_rows({"runs": {"linear/optimal": m}})[0]

@@ -10,13 +10,15 @@ joints sit within one encoder count and quantization takes over):
   estimate of th1 within 0.006 rad of the plant's.
 """
 import math
+from dataclasses import replace
 
 import numpy as np
 
-from hostsim.fil import run_firmware
-from hostsim.linear_sim import GainSet, simulate_linear
-from hostsim.montecarlo import gains_document
-from hostsim.scenario import load_scenario
+from hostsim.sim.fil import run_firmware
+from hostsim.sim.linear_sim import simulate_linear
+from hostsim.studies.montecarlo import gains_document
+from hostsim.sim.scenario import Disturbance, Push, load_scenario
+from tipbot_fw.gains import gains_from_dict
 
 COUNT_RAD = 2 * math.pi / 360
 WINDOW_S = 1.0
@@ -24,20 +26,20 @@ WINDOW_S = 1.0
 
 def compare(zero_kw):
     sc = load_scenario("near_equilibrium")
-    doc = gains_document(sc["gains"], zero_kw)
-    lin = simulate_linear(GainSet(sc["gains"], doc), sc)
+    doc = gains_document(sc.gains, zero_kw)
+    lin = simulate_linear(gains_from_dict(doc, sc.gains), sc)
     fw = run_firmware(sc, gains_doc=doc, sysfs=False)
     n = int(round(WINDOW_S / 0.005)) + 1
-    assert len(fw["t_s"]) >= n, "the firmware stopped at %.2f s: %s" % (fw["t_s"][-1], fw["stop_reason"])
-    assert np.allclose(fw["t_s"][:n], lin["t_s"][:n], atol=1e-9)
-    assert np.max(np.abs(lin["u"][:n])) < 7.6                      # no saturation in the reference
-    err = np.max(np.abs(fw["x"][:n] - lin["x"][:n]), axis=0)
+    assert len(fw.t_s) >= n, "the firmware stopped at %.2f s: %s" % (fw.t_s[-1], fw.stop_reason)
+    assert np.allclose(fw.t_s[:n], lin.t_s[:n], atol=1e-9)
+    assert np.max(np.abs(lin.u[:n])) < 7.6                      # no saturation in the reference
+    err = np.max(np.abs(fw.x[:n] - lin.x[:n]), axis=0)
     assert err[2] < 0.006, "th1 differs by %.4f rad" % err[2]
     assert err[3] < COUNT_RAD and err[4] < COUNT_RAD, "th2/th3 differ by %.4f/%.4f rad" % (err[3], err[4])
     assert err[0] < 0.004 and err[1] < 0.004, "d differs by %.4f/%.4f m" % (err[0], err[1])
-    assert np.max(np.abs(fw["xhat"][:n, 2] - fw["x"][:n, 2])) < 0.006
+    assert np.max(np.abs(fw.xhat[:n, 2] - fw.x[:n, 2])) < 0.006
     # Not trivially close: the response itself is several times the tolerance.
-    assert np.ptp(lin["x"][:n, 2]) > 0.03
+    assert np.ptp(lin.x[:n, 2]) > 0.03
     return fw
 
 
@@ -53,22 +55,21 @@ def test_firmware_follows_the_linear_model_with_kw_zeroed():
 
 def test_sysfs_and_memory_devices_give_the_same_run():
     sc = load_scenario("near_equilibrium")
-    sc.update(duration_s=0.6, sensors=dict(sc["sensors"], gyro_noise_dps=0.4, gyro_bias_dps=1.2), jitter_s=0.0005,
-              extra_delay_ticks=1, seed=5)
-    doc = gains_document(sc["gains"], True)
+    sc = replace(sc, duration_s=0.6, sensors=replace(sc.sensors, gyro_noise_dps=0.4, gyro_bias_dps=1.2),
+                 jitter_s=0.0005, extra_delay_ticks=1, seed=5)
+    doc = gains_document(sc.gains, True)
     a = run_firmware(sc, gains_doc=doc, sysfs=True)
     b = run_firmware(sc, gains_doc=doc, sysfs=False)
-    assert a["exit_code"] == b["exit_code"] == 0
-    assert np.array_equal(a["x"], b["x"]) and np.array_equal(a["u"], b["u"])
-    assert np.array_equal(a["xhat"], b["xhat"])
+    assert a.exit_code == b.exit_code == 0
+    assert np.array_equal(a.x, b.x) and np.array_equal(a.u, b.u)
+    assert np.array_equal(a.xhat, b.xhat)
 
 
 def test_disturbance_and_push_reach_the_plant_at_their_times():
-    sc = load_scenario("near_equilibrium")
-    sc.update(duration_s=0.5, x0_si=[0.0] * 10, pushes=[{"t_s": 0.2, "th1_dot_rad_s": 0.3}],
-              disturbances=[{"t_start_s": 0.1, "t_end_s": 0.15, "w_v": [1, -1, 0, 0.5, 0]}])
-    run = run_firmware(sc, gains_doc=gains_document(sc["gains"], True), sysfs=False, keep_rows=False)
-    t, w, x = run["t_s"], run["w"], run["x"]
+    sc = replace(load_scenario("near_equilibrium"), duration_s=0.5, x0_si=(0.0,) * 10, pushes=(Push(0.2, 0.3),),
+                 disturbances=(Disturbance(0.1, 0.15, (1, -1, 0, 0.5, 0)),))
+    run = run_firmware(sc, gains_doc=gains_document(sc.gains, True), sysfs=False, keep_rows=False)
+    t, w, x = run.t_s, run.w, run.x
     inside = (t >= 0.1 - 1e-9) & (t < 0.15 - 1e-9)
     assert np.all(w[inside] == [1, -1, 0, 0.5, 0]) and np.all(w[~inside] == 0)
     # The sample at t = 0.2 s is read just before the push acts.

@@ -5,18 +5,19 @@ firmware-in-the-loop runs are held to what must be true whatever the firmware's 
 (saturated inputs, estimate starting at the first measurement, a clean stop), and where they
 start near the equilibrium (Section 8, Appendix D) they must balance.
 """
-import os
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
-from hostsim import metrics
-from hostsim.fil import run_firmware
-from hostsim.linear_sim import GainSet, simulate_linear, simulate_nonlinear
-from hostsim.params import REPO_ROOT
-from hostsim.pd import pd_for_gains
-from hostsim.runner import run_scenario, scenario_metrics
-from hostsim.scenario import load_scenario
+from hostsim.sim import metrics
+from hostsim.sim.fil import run_firmware
+from hostsim.sim.linear_sim import simulate_linear, simulate_nonlinear
+from hostsim.model.pd import pd_for_gains
+from hostsim.studies.runner import run_scenario, scenario_metrics
+from hostsim.sim.scenario import load_scenario
+from tipbot_fw.gains import load_gains
+from conftest import gains_path
 
 U_MAX = 7.6
 ACT = [0, 1, 3, 4]
@@ -25,10 +26,8 @@ ACT = [0, 1, 3, 4]
 def shortened(name, duration_s, shift_s=0.0):
     """The scenario cut to duration_s, its disturbances moved earlier by shift_s."""
     sc = load_scenario(name)
-    sc["duration_s"] = duration_s
-    sc["disturbances"] = [dict(d, t_start_s=d["t_start_s"] - shift_s, t_end_s=d["t_end_s"] - shift_s)
-                          for d in sc["disturbances"]]
-    return sc
+    return replace(sc, duration_s=duration_s, disturbances=tuple(
+        replace(d, t_start_s=d.t_start_s - shift_s, t_end_s=d.t_end_s - shift_s) for d in sc.disturbances))
 
 
 def run_metrics(sc, modes):
@@ -45,7 +44,7 @@ def section7():
 def test_section7_demands_about_20_volts_at_the_first_step(section7):
     sc, (gs, runs, m) = section7
     # |K x(0)| from the printed x(0) is 19-25 V (shared/paper/README.md), far above 7.6 V.
-    k_x0 = np.abs(gs.K @ np.array(sc["x0_si"]))[ACT]
+    k_x0 = np.abs(gs.K @ np.array(sc.x0_si))[ACT]
     assert 15.0 < k_x0.max() < 30.0
     lin = m["linear/optimal"]
     assert max(abs(v) for v in lin["u0_unsat_v"]) > 15.0
@@ -72,7 +71,7 @@ def test_section7_detector_error_converges_despite_disturbance_and_saturation(se
     # w^_k is w_k one tick later, exactly, once the estimate has converged.
     assert lin["w_hat_error_v"] < 1e-6
     run = runs["linear/optimal"]
-    e = np.abs(run["xhat"] - run["x"]).max(axis=1)
+    e = np.abs(run.xhat - run.x).max(axis=1)
     assert e[40] < 1e-6 * e[0]                            # detector poles at 0.2: fast
     # The nonlinear plant is not the detector's model: the error is small, not zero.
     assert m["nonlinear/optimal"]["final_est_error"] < 1e-3
@@ -87,7 +86,7 @@ def test_section8_short_rejects_the_wheel_disturbance():
         assert max(r["peak_abs_u_v"]) < U_MAX                 # no saturation from 0.017 rad
         assert r["disturbed_peak_dev"][2] < 0.005             # th1 barely moves under 1 V
         assert r["final_abs_d_m"] < 0.01
-    a, b = runs["linear/optimal"]["x"], runs["nonlinear/optimal"]["x"]
+    a, b = runs["linear/optimal"].x, runs["nonlinear/optimal"].x
     assert np.max(np.abs(a[:, 2] - b[:, 2])) < 1e-3
 
 
@@ -106,7 +105,7 @@ def test_appendix_d_short_optimal_beats_pd():
 
 def test_pd_baseline_is_stable_and_close_to_the_lq_cost():
     for variant in ("paper", "physical"):
-        pd = pd_for_gains(os.path.join(REPO_ROOT, "gains", variant + ".json"))
+        pd = pd_for_gains(gains_path(variant))
         assert pd["spectral_radius"] < 1.0
         assert 1.0 < pd["cost"] / pd["lqr_cost"] < 1.5
 
@@ -116,17 +115,17 @@ def test_pd_baseline_is_stable_and_close_to_the_lq_cost():
 def test_firmware_runs_of_the_paper_scenarios_keep_the_invariants(name, duration, shift):
     sc = shortened(name, duration, shift)
     run = run_firmware(sc, sysfs=False)
-    n = len(run["t_s"])
-    assert n >= 1 and run["exit_code"] in (0, 6)                       # completed, or a safety stop
-    assert np.all(np.abs(run["u"][:, ACT]) <= U_MAX + 1e-9)
-    assert np.all(np.abs(run["u_cmd"][:, ACT]) <= U_MAX + 1e-9)
+    n = len(run.t_s)
+    assert n >= 1 and run.exit_code in (0, 6)                       # completed, or a safety stop
+    assert np.all(np.abs(run.u[:, ACT]) <= U_MAX + 1e-9)
+    assert np.all(np.abs(run.u_cmd[:, ACT]) <= U_MAX + 1e-9)
     # The estimate starts at the first measurement, not at the scenario's x~(0).
-    assert np.allclose(run["xhat"][0], run["y"][0])
-    assert np.abs(run["xhat"][0, 2:5] - np.array(sc["x0_si"][2:5])).max() < 0.02
-    # The wheel origin (hostsim.fil): shifted by d_origin_m, the firmware's measured d is the
+    assert np.allclose(run.xhat[0], run.y[0])
+    assert np.abs(run.xhat[0, 2:5] - np.array(sc.x0_si[2:5])).max() < 0.02
+    # The wheel origin (hostsim.sim.fil): shifted by d_origin_m, the firmware's measured d is the
     # plant's, to an encoder count and the th1 estimate's error times R_w.
-    early = run["t_s"] <= 0.3
-    assert np.abs(run["y"][early, :2] - run["x"][early, :2]).max() < 0.002
+    early = run.t_s <= 0.3
+    assert np.abs(run.y[early, :2] - run.x[early, :2]).max() < 0.002
 
 
 @pytest.mark.parametrize("name", ["section8", "appendix_d"])
@@ -139,7 +138,7 @@ def test_firmware_balances_with_the_shipped_gains(name):
 
 def test_linear_and_nonlinear_agree_near_equilibrium():
     sc = load_scenario("near_equilibrium")
-    g = GainSet(sc["gains"])
+    g = load_gains(sc.gains)
     lin, nl = simulate_linear(g, sc), simulate_nonlinear(g, sc)
-    assert np.max(np.abs(lin["x"][:, 2] - nl["x"][:, 2])) < 2e-4
-    assert np.max(np.abs(lin["u"] - nl["u"])) < 0.05
+    assert np.max(np.abs(lin.x[:, 2] - nl.x[:, 2])) < 2e-4
+    assert np.max(np.abs(lin.u - nl.u)) < 0.05

@@ -1,23 +1,23 @@
 """The plant's speed-ups keep its numbers: the compiled derivative is bit-identical to the
 model + Cholesky it replaces, and Heun at 1 kHz stays within stated bounds of RK4."""
-import os
 
 import numpy as np
 import pytest
 
-from hostsim import fastdyn
-from hostsim.linear_sim import GainSet, simulate_nonlinear
-from hostsim.model import RobotModel
-from hostsim.params import REPO_ROOT, load_params
-from hostsim.plant import Plant, solve_spd5
-from hostsim.scenario import parse_scenario
+from hostsim.model import fastdyn
+from hostsim.sim.linear_sim import simulate_nonlinear
+from hostsim.model.equations import RobotModel
+from hostsim.world.plant import Plant, solve_spd5
+from hostsim.sim.scenario import parse_scenario
+from tipbot_fw.gains import load_gains
+from conftest import gains_path
 
 VARIANTS = ("paper", "physical")
 
 
 @pytest.mark.parametrize("variant", VARIANTS)
-def test_compiled_derivative_is_bit_identical(variant):
-    model = RobotModel(variant, load_params())
+def test_compiled_derivative_is_bit_identical(variant, params):
+    model = RobotModel(variant, params)
     deriv, pre = fastdyn.compile_model(model)
     rng = np.random.default_rng(3)
     for _ in range(300):
@@ -28,8 +28,8 @@ def test_compiled_derivative_is_bit_identical(variant):
         assert deriv(x, u, pre) == x[5:] + solve_spd5(m, f)
 
 
-def test_external_force_path_agrees_with_the_fast_path():
-    model = RobotModel("physical", load_params())
+def test_external_force_path_agrees_with_the_fast_path(params):
+    model = RobotModel("physical", params)
     x0 = [0.0, 0.01, 0.1, -0.05, 0.05, 0.0, 0.0, 0.2, 0.0, 0.0]
     a, b = Plant(model, x0), Plant(model, x0)
     u = [1.0, -0.5, 0.0, 0.3, 0.2]
@@ -45,14 +45,14 @@ HEUN_BOUNDS = {"paper": (3e-4, 0.03), "physical": (2e-5, 2e-4)}   # (angles rad,
 
 @pytest.mark.parametrize("variant", VARIANTS)
 def test_heun_matches_rk4_closely(variant):
-    path = os.path.join(REPO_ROOT, "gains", variant + ".json")
-    g = GainSet(path)
+    path = gains_path(variant)
+    g = load_gains(path)
     base = {"duration_s": 3.0, "gains": path, "plant_variant": variant,
             "x0_si": [0, 0, 0.15, 0.1, -0.1, 0, 0, 0, 0, 0],
             "disturbances": [{"t_start_s": 1.0, "t_end_s": 2.0, "w_v": [1, 1, 0, 0.5, 0.5]}]}
     runs = {m: simulate_nonlinear(g, parse_scenario(dict(base, plant_method=m))) for m in ("rk4", "heun")}
-    assert runs["rk4"]["completed"] and np.max(np.abs(runs["rk4"]["u"])) == pytest.approx(7.6)
-    err = np.max(np.abs(runs["heun"]["x"] - runs["rk4"]["x"]), axis=0)
+    assert runs["rk4"].completed and np.max(np.abs(runs["rk4"].u)) == pytest.approx(7.6)
+    err = np.max(np.abs(runs["heun"].x - runs["rk4"].x), axis=0)
     angles, rates = HEUN_BOUNDS[variant]
     assert err[2:5].max() < angles
     assert err[7:].max() < rates

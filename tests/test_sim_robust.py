@@ -2,8 +2,9 @@
 import numpy as np
 import pytest
 
-from hostsim import montecarlo, roa
-from hostsim.scenario import load_scenario
+from hostsim.studies import montecarlo
+from hostsim.studies import roa
+from hostsim.sim.scenario import load_scenario
 
 
 def _strip(rows):

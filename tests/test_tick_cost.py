@@ -5,7 +5,8 @@ import sys
 
 import pytest
 
-REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+from conftest import REPO
+
 TICK_COST = os.path.join(REPO, "tools", "tick-cost")
 INSNS = os.path.join(REPO, "tools", "insns")
 

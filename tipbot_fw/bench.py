@@ -26,14 +26,46 @@ from tipbot_fw.clock import MonotonicClock
 from tipbot_fw.config import defaults
 from tipbot_fw.core import Core
 from tipbot_fw.devices import MemoryDevices
-from tipbot_fw.gains import ACTUATED_INPUTS, gains_from_dict, load_gains
+from tipbot_fw.gains import ACTUATED_INPUTS, N_INPUTS, UNUSED_INPUT, gains_from_dict, load_gains
 from tipbot_fw.loop import ControlLoop
 from tipbot_fw.safety import SafetyStop
 
 
+def synthetic_gains_doc(A, B, K, ts_s, Q=None, R=None, u_max_v=7.6, detector_pole=0.2,
+                        state_units=None, model_variant='physical', generator='synthetic', **extra):
+    """A schema-1 gains document around a model (A, B) and a stabilizing gain K (SI): the detector
+    of Section 6 with G_w = B_a^+ (so L2 = E G_w projects on range(E): (L2 C - I) E = 0),
+    L1 = Abar - detector_pole I (so Abar - L1 C = detector_pole I), and K_w = I on the actuated
+    inputs (it cancels an input disturbance). extra: further fields (parameters, ...)."""
+    n = A.shape[0]
+    Ba = B[:, ACTUATED_INPUTS]
+    G = np.zeros((N_INPUTS, n))
+    G[ACTUATED_INPUTS, :] = np.linalg.pinv(Ba)
+    L2 = Ba.dot(G[ACTUATED_INPUTS, :])
+    L1 = (np.eye(n) - L2).dot(A) - detector_pole * np.eye(n)
+    K_w = np.diag([0.0 if i == UNUSED_INPUT else 1.0 for i in range(N_INPUTS)])
+    rho = float(np.max(np.abs(np.linalg.eigvals(A - B.dot(K)))))
+    doc = {
+        'schema_version': 1, 'model_variant': model_variant, 'ts_s': ts_s,
+        'state_names': list(logfile.STATE_NAMES),
+        'state_units': list(logfile.STATE_UNITS if state_units is None else state_units),
+        'input_names': ['u_r', 'u_l', 'u_th1', 'u_th2', 'u_th3'], 'input_units': ['V'] * N_INPUTS,
+        'actuated_inputs': list(ACTUATED_INPUTS),
+        'A': A.tolist(), 'B': B.tolist(), 'C': np.eye(n).tolist(), 'E': B.tolist(),
+        'K': K.tolist(), 'K_w': K_w.tolist(), 'L1': L1.tolist(), 'L2': L2.tolist(),
+        'G_w': G.tolist(), 'detector_eigenvalues': [detector_pole] * n, 'closed_loop_spectral_radius': rho,
+        'Q': (np.eye(n) if Q is None else Q).tolist(), 'R': (np.eye(N_INPUTS) if R is None else R).tolist(),
+        'u_max_v': u_max_v, 'parameters': {}, 'parameters_sha256': '', 'model_options': {},
+        'generator': generator,
+    }
+    doc.update(extra)
+    return doc
+
+
 def synthetic_gains(ts_s=0.005, seed=1):
-    """Valid gains with the structure of the real ones: stable A - B K, the detector of
-    Section 6 with L2 = E E^+ (so (L2 C - I) E = 0) and Abar - L1 C = 0.2 I."""
+    """Valid gains with the structure of the real ones (synthetic_gains_doc) for a random
+    robot-like model; K from a few hundred Riccati iterations (Q = I, R = I): stabilizing, with
+    values like an LQR's, and no scipy (this runs on the brick)."""
     rng = np.random.RandomState(seed)
     n = 10
     A = np.eye(n) + ts_s * np.vstack([np.hstack([np.zeros((5, 5)), np.eye(5)]),
@@ -41,30 +73,13 @@ def synthetic_gains(ts_s=0.005, seed=1):
     B = np.zeros((n, 5))
     B[5:, ACTUATED_INPUTS] = ts_s * rng.uniform(-20.0, 20.0, (5, 4))
     Ba = B[:, ACTUATED_INPUTS]
-    # K from a few hundred Riccati iterations (Q = I, R = I): stabilizing, values like an LQR's
     P = np.eye(n)
     for _ in range(300):
         Ka = np.linalg.solve(np.eye(4) + Ba.T.dot(P).dot(Ba), Ba.T.dot(P).dot(A))
         P = np.eye(n) + A.T.dot(P).dot(A - Ba.dot(Ka))
     K = np.zeros((5, n))
     K[ACTUATED_INPUTS, :] = Ka
-    G = np.zeros((5, n))
-    G[ACTUATED_INPUTS, :] = np.linalg.pinv(Ba)
-    L2 = Ba.dot(G[ACTUATED_INPUTS, :])
-    L1 = (np.eye(n) - L2).dot(A) - 0.2 * np.eye(n)
-    K_w = np.diag([1.0, 1.0, 0.0, 1.0, 1.0])
-    rho = float(np.max(np.abs(np.linalg.eigvals(A - B.dot(K)))))
-    doc = {
-        'schema_version': 1, 'model_variant': 'physical', 'ts_s': ts_s,
-        'state_names': list(logfile.STATE_NAMES), 'state_units': list(logfile.STATE_UNITS),
-        'input_names': ['u_r', 'u_l', 'u_th1', 'u_th2', 'u_th3'], 'input_units': ['V'] * 5,
-        'actuated_inputs': list(ACTUATED_INPUTS),
-        'A': A.tolist(), 'B': B.tolist(), 'C': np.eye(n).tolist(), 'E': B.tolist(),
-        'K': K.tolist(), 'K_w': K_w.tolist(), 'L1': L1.tolist(), 'L2': L2.tolist(),
-        'G_w': G.tolist(), 'detector_eigenvalues': [0.2] * n, 'closed_loop_spectral_radius': rho,
-        'Q': np.eye(n).tolist(), 'R': np.eye(5).tolist(), 'u_max_v': 7.6, 'parameters': {},
-        'parameters_sha256': '', 'model_options': {}, 'generator': 'tipbot_fw.bench.synthetic_gains',
-    }
+    doc = synthetic_gains_doc(A, B, K, ts_s, generator='tipbot_fw.bench.synthetic_gains')
     return gains_from_dict(doc, '<synthetic>', 'synthetic')
 
 

@@ -1,21 +1,16 @@
 """Command line: python3 -m tipbot_fw {run,check,calibrate,bench,identify} ... (exit codes: tipbot_fw.safety)."""
 import argparse
-import sys
 
 from tipbot_fw import identify, logfile, safety
 from tipbot_fw.bench import brick_bench
 from tipbot_fw.calibration import calibrate_gyro
 from tipbot_fw.clock import MonotonicClock
 from tipbot_fw.config import ConfigError, load_config
+from tipbot_fw.console import say as _say
 from tipbot_fw.gains import GainsError, load_gains
 from tipbot_fw.session import log_refused_start, run_session
 
 CHECK_PERIOD_S = 0.005   # gyro sampling period for check/calibrate (no gains file involved)
-
-
-def _say(msg):
-    sys.stderr.write('tipbot: {}\n'.format(msg))
-    sys.stderr.flush()
 
 
 def _positive_float(text):

@@ -34,62 +34,22 @@ Every field is validated; errors name the file and the dotted field path. Fields
   realtime_priority                            SCHED_FIFO priority to request, 0 = don't
 """
 import copy
-import json
-import math
 import os
+
+from tipbot_fw import fields
 
 DEFAULT_PATH = os.path.join(os.path.dirname(os.path.abspath(__file__)), 'default_config.json')
 
-MOTORS = ('right_wheel', 'left_wheel', 'joint2', 'joint3')
+# The four motors' roles, in the order of every per-motor tuple (duties, counts, polarities).
+MOTOR_ROLES = ('right_wheel', 'left_wheel', 'joint2', 'joint3')
 
 
 class ConfigError(ValueError):
     """Invalid configuration; the message names the file and the field."""
 
 
-def _number(lo=None, hi=None, lo_open=True, integer=False, allow_null=False):
-    if integer:
-        kind = 'an integer'
-    else:
-        kind = 'a number'
-    if lo is not None and hi is not None:
-        kind += ' in {}{}, {}]'.format('(' if lo_open else '[', lo, hi)
-    elif lo is not None:
-        kind += ' {} {}'.format('>' if lo_open else '>=', lo)
-    if allow_null:
-        kind += ' or null'
-
-    def check(v):
-        if v is None and allow_null:
-            return None
-        if isinstance(v, bool) or not isinstance(v, (int, float)):
-            return 'must be {}, got {!r}'.format(kind, v)
-        if integer and not isinstance(v, int):
-            return 'must be {}, got {!r}'.format(kind, v)
-        if not math.isfinite(v):
-            return 'must be {}, got {!r}'.format(kind, v)
-        if lo is not None and (v <= lo if lo_open else v < lo):
-            return 'must be {}, got {!r}'.format(kind, v)
-        if hi is not None and v > hi:
-            return 'must be {}, got {!r}'.format(kind, v)
-        return None
-    return check
-
-
-def _one_of(*choices):
-    def check(v):
-        if isinstance(v, bool) or v not in choices:
-            return 'must be one of {}, got {!r}'.format(', '.join(repr(c) for c in choices), v)
-        return None
-    return check
-
-
-def _nonempty_str(v):
-    if not isinstance(v, str) or not v:
-        return 'must be a non-empty string, got {!r}'.format(v)
-    return None
-
-
+_number = fields.number
+_one_of = fields.one_of
 _SIGN = _one_of(1, -1)
 _MOTOR_PORT = _one_of('outA', 'outB', 'outC', 'outD')
 
@@ -100,11 +60,11 @@ SPEC = {
     'ports.joint2': _MOTOR_PORT,
     'ports.joint3': _MOTOR_PORT,
     'ports.gyro': _one_of('in1', 'in2', 'in3', 'in4'),
-    'drivers.right_wheel': _nonempty_str,
-    'drivers.left_wheel': _nonempty_str,
-    'drivers.joint2': _nonempty_str,
-    'drivers.joint3': _nonempty_str,
-    'drivers.gyro': _nonempty_str,
+    'drivers.right_wheel': fields.nonempty_string,
+    'drivers.left_wheel': fields.nonempty_string,
+    'drivers.joint2': fields.nonempty_string,
+    'drivers.joint3': fields.nonempty_string,
+    'drivers.gyro': fields.nonempty_string,
     'stop_action': _one_of('coast', 'brake'),
     'polarity.right_wheel': _SIGN,
     'polarity.left_wheel': _SIGN,
@@ -136,18 +96,14 @@ SPEC = {
 }
 
 
-def _merge(base, override, source, prefix):
+def _merge(base, override, f, prefix):
     """Copy of base with override's fields replacing base's; unknown fields are errors."""
     out = copy.deepcopy(base)
+    f.known(override, base, prefix)
     for key in sorted(override):
-        path = prefix + key
-        if key not in base:
-            raise ConfigError('{}: field {}: unknown field'.format(source, path))
         if isinstance(base[key], dict):
-            if not isinstance(override[key], dict):
-                raise ConfigError('{}: field {}: must be an object, got {!r}'.format(
-                    source, path, override[key]))
-            out[key] = _merge(base[key], override[key], source, path + '.')
+            f.check(prefix + key, override[key], fields.obj)
+            out[key] = _merge(base[key], override[key], f, prefix + key + '.')
         else:
             out[key] = copy.deepcopy(override[key])
     return out
@@ -164,54 +120,32 @@ def _leaves(doc, prefix=''):
 
 def validate(config, source):
     """Raise ConfigError naming source and field for the first problem found."""
-    seen = set()
-    for path, value in _leaves(config):
-        check = SPEC.get(path)
-        if check is None:
-            raise ConfigError('{}: field {}: unknown field'.format(source, path))
-        problem = check(value)
-        if problem:
-            raise ConfigError('{}: field {}: {}'.format(source, path, problem))
-        seen.add(path)
-    missing = sorted(set(SPEC) - seen)
-    if missing:
-        raise ConfigError('{}: field {}: missing'.format(source, missing[0]))
-    ports = [config['ports'][m] for m in MOTORS]
-    for i, m in enumerate(MOTORS):
+    f = fields.Fields(source, ConfigError)
+    leaves = dict(_leaves(config))
+    f.known(leaves, SPEC)
+    f.require(leaves, sorted(SPEC))
+    for path in sorted(leaves):
+        f.check(path, leaves[path], SPEC[path])
+    ports = [config['ports'][m] for m in MOTOR_ROLES]
+    for i, m in enumerate(MOTOR_ROLES):
         if ports.count(ports[i]) > 1:
-            raise ConfigError('{}: field ports.{}: port {} is used by two motors'.format(
-                source, m, ports[i]))
+            f.fail('ports.' + m, 'is {}, the port of another motor too'.format(ports[i]))
 
 
 def motor_polarity(config):
     """The 4 motor polarities in motor order (right wheel, left wheel, joint 2, joint 3)."""
-    return tuple(config['polarity'][m] for m in MOTORS)
-
-
-def _read_json(path):
-    try:
-        with open(path, 'rb') as f:
-            text = f.read().decode('utf-8')
-    except (OSError, UnicodeError) as e:
-        raise ConfigError('{}: cannot read: {}'.format(path, e))
-    try:
-        doc = json.loads(text)
-    except ValueError as e:
-        raise ConfigError('{}: not valid JSON: {}'.format(path, e))
-    if not isinstance(doc, dict):
-        raise ConfigError('{}: must be a JSON object'.format(path))
-    return doc
+    return tuple(config['polarity'][m] for m in MOTOR_ROLES)
 
 
 def defaults():
-    doc = _read_json(DEFAULT_PATH)
+    doc = fields.read_object(DEFAULT_PATH, ConfigError)
     validate(doc, DEFAULT_PATH)
     return doc
 
 
 def config_from_overrides(overrides, source='<overrides>'):
     """Defaults with `overrides` (a dict shaped like the config, any subset) merged in."""
-    merged = _merge(defaults(), overrides, source, '')
+    merged = _merge(defaults(), overrides, fields.Fields(source, ConfigError), '')
     validate(merged, source)
     return merged
 
@@ -220,4 +154,4 @@ def load_config(path=None):
     """The configuration: defaults, with the fields of the JSON file `path` (if given) replacing them."""
     if path is None:
         return defaults()
-    return config_from_overrides(_read_json(path), path)
+    return config_from_overrides(fields.read_object(path, ConfigError), path)

@@ -4,9 +4,6 @@ Raw readings cross this interface untouched (counts and integer gyro units, no p
 offsets): the signal chain owns every conversion, so a log of raw readings replays exactly.
 """
 
-# One read_raw() is 5 sysfs reads on the brick: 4 encoder `position` files + the gyro `bin_data`.
-READS_PER_RAW = 5
-
 
 class Devices(object):
     """Interface (docs/architecture.md). Motor order everywhere: right wheel, left wheel, th2, th3."""
@@ -15,7 +12,8 @@ class Devices(object):
     counts_per_rot = (360, 360, 360, 360)
 
     def read_raw(self):
-        """-> ((enc_r, enc_l, enc_2, enc_3) counts, (gyro_angle_deg, gyro_rate_dps)), all ints."""
+        """-> ((enc_r, enc_l, enc_2, enc_3) counts, (gyro_angle_deg, gyro_rate_dps)), all ints.
+        On the brick: 5 sysfs reads, the 4 encoders' `position` and the gyro's `bin_data`."""
         raise NotImplementedError
 
     def write_duties(self, duties):

@@ -42,7 +42,8 @@ import logging
 import os
 import struct
 
-MOTOR_ROLES = ('right_wheel', 'left_wheel', 'joint2', 'joint3')
+from tipbot_fw.config import MOTOR_ROLES
+
 GYRO_ROLE = 'gyro'
 GYRO_MODE = 'GYRO-G&A'
 STOP_ACTIONS = ('coast', 'brake')
@@ -96,7 +97,7 @@ class Ev3WriteError(Ev3IOError):
     pass
 
 
-def _short_port(address):
+def short_port(address):
     """'ev3-ports:outA' -> 'outA' (ev3dev-stretch prefixes EV3 port names with 'ev3-ports:')."""
     if address.startswith('ev3-ports:'):
         return address[len('ev3-ports:'):]
@@ -115,8 +116,8 @@ def device_spec(config):
             problems.append('config: missing field {}.{}'.format(group, role))
             return ''
 
-    motors = [(_short_port(field('ports', r)), field('drivers', r)) for r in MOTOR_ROLES]
-    gyro = (_short_port(field('ports', GYRO_ROLE)), field('drivers', GYRO_ROLE))
+    motors = [(short_port(field('ports', r)), field('drivers', r)) for r in MOTOR_ROLES]
+    gyro = (short_port(field('ports', GYRO_ROLE)), field('drivers', GYRO_ROLE))
     stop_action = config.get('stop_action', DEFAULT_STOP_ACTION)
     if stop_action not in STOP_ACTIONS:
         problems.append('config: stop_action must be one of {}, not {!r}'.format(
@@ -126,17 +127,17 @@ def device_spec(config):
     return motors, gyro, stop_action
 
 
-def _survey(ev3dev2, class_name, pattern):
+def survey(ev3dev2, class_name, pattern):
     """{short port: (device dir, driver_name)} of every device of a sysfs class, read through
-    python-ev3dev2 (whose DEVICE_ROOT_PATH the caller has set). Exact ports: ev3dev2's own
-    address match is a substring match ('in2' would also match 'in2:i2c80:mux1')."""
+    python-ev3dev2 (whose DEVICE_ROOT_PATH the caller has set, see under_root). Exact ports:
+    ev3dev2's own address match is a substring match ('in2' would also match 'in2:i2c80:mux1')."""
     classpath = os.path.abspath(ev3dev2.Device.DEVICE_ROOT_PATH + '/' + class_name)
     found = {}
     for name in ev3dev2.list_device_names(classpath, pattern):
         dev = ev3dev2.Device(class_name, name, name_exact=True)
         _, address = dev.get_attr_string(None, 'address')
         _, driver = dev.get_attr_string(None, 'driver_name')
-        found[_short_port(address)] = (classpath + '/' + name, driver)
+        found[short_port(address)] = (classpath + '/' + name, driver)
     return found
 
 
@@ -152,18 +153,38 @@ def _check(found, port, driver, kind, problems):
     return path
 
 
+class under_root(object):
+    """``with under_root(sysfs_root) as ev3dev2:`` python-ev3dev2, imported late (only the brick
+    has it), with its Device.DEVICE_ROOT_PATH set to sysfs_root, restored on leaving."""
+
+    def __init__(self, sysfs_root):
+        self.sysfs_root = sysfs_root
+
+    def __enter__(self):
+        import ev3dev2
+        self.ev3dev2 = ev3dev2
+        self.saved = ev3dev2.Device.DEVICE_ROOT_PATH
+        ev3dev2.Device.DEVICE_ROOT_PATH = self.sysfs_root
+        return ev3dev2
+
+    def __exit__(self, *exc):
+        self.ev3dev2.Device.DEVICE_ROOT_PATH = self.saved
+
+
+def count_per_rot(ev3dev2, device_dir):
+    """sysfs ``count_per_rot`` of the tacho motor in device_dir."""
+    dev = ev3dev2.Device('tacho-motor', os.path.basename(device_dir), name_exact=True)
+    return dev.get_attr_int(None, 'count_per_rot')[1]
+
+
 def discover(config, sysfs_root='/sys/class'):
     """Find the configured devices with python-ev3dev2 and check their drivers.
 
-    -> ({port: device dir}, counts_per_rot of the 4 motors); Ev3SetupError lists every fault.
-    ev3dev2.Device.DEVICE_ROOT_PATH is set to sysfs_root meanwhile, and restored."""
-    import ev3dev2
+    -> ({port: device dir}, counts_per_rot of the 4 motors); Ev3SetupError lists every fault."""
     motors, gyro, _ = device_spec(config)
-    saved_root = ev3dev2.Device.DEVICE_ROOT_PATH
-    ev3dev2.Device.DEVICE_ROOT_PATH = sysfs_root
-    try:
-        found_motors = _survey(ev3dev2, 'tacho-motor', 'motor*')
-        found_sensors = _survey(ev3dev2, 'lego-sensor', 'sensor*')
+    with under_root(sysfs_root) as ev3dev2:
+        found_motors = survey(ev3dev2, 'tacho-motor', 'motor*')
+        found_sensors = survey(ev3dev2, 'lego-sensor', 'sensor*')
         problems = []
         paths = {}
         for port, driver in motors:
@@ -181,17 +202,116 @@ def discover(config, sysfs_root='/sys/class'):
                     gyro_port, GYRO_MODE, ' '.join(modes)))
         if problems:
             raise Ev3SetupError(problems)
-        counts = []
-        for port, _ in motors:
-            dev = ev3dev2.Device('tacho-motor', os.path.basename(paths[port]), name_exact=True)
-            counts.append(dev.get_attr_int(None, 'count_per_rot')[1])
-        return paths, tuple(counts)
-    finally:
-        ev3dev2.Device.DEVICE_ROOT_PATH = saved_root
+        return paths, tuple(count_per_rot(ev3dev2, paths[port]) for port, _ in motors)
 
 
-class Ev3Devices(object):
-    """Devices on an ev3dev sysfs tree (the real /sys/class, or hostsim.fake_ev3's).
+class SysfsDevices(object):
+    """What the firmware's sysfs device layers share (Ev3Devices for the robot,
+    tipbot_fw.identify.SingleMotor for one motor): file descriptors opened once, set-up writes
+    that name the port and attribute, the battery reading, and close() that stops the motors
+    before it closes the descriptors.
+
+    ``io`` provides open/pread/pwrite/close with the signatures of :mod:`os` (the default);
+    tests pass a counting one. A subclass opens its attributes with _open_attr, then calls
+    _opened(), and implements stop_all() with _stop_writes().
+    """
+
+    def __init__(self, io=os):
+        self._io = io
+        self._pread = io.pread
+        self._pwrite = io.pwrite
+        self._fds = []
+        self._closed = False
+        self._open_problems = []
+        self._battery_fd = -1
+
+    def _open_attr(self, port, name, flags, path):
+        """An fd of the attribute at path, or -1 with the problem noted for _opened()."""
+        try:
+            fd = self._io.open(path, flags)
+        except OSError as e:
+            self._open_problems.append('port {}: cannot open {}: {}'.format(port, name, e))
+            return -1
+        self._fds.append(fd)
+        return fd
+
+    def _open_battery(self, sysfs_root):
+        self._battery_fd = self._open_attr('battery', BATTERY_PATH, os.O_RDONLY,
+                                           sysfs_root + '/' + BATTERY_PATH)
+
+    def _opened(self):
+        """Ev3SetupError listing every attribute _open_attr could not open."""
+        if self._open_problems:
+            raise Ev3SetupError(self._open_problems)
+
+    def _setup_write(self, port, name, fd, text):
+        try:
+            self._pwrite(fd, (text + '\n').encode('ascii'), 0)
+        except OSError as e:
+            raise Ev3SetupError(['port {}: writing {} {!r} failed: {}'.format(port, name, text, e)])
+
+    def _write_once(self, port, device_dir, name, text):
+        """Open, write and close a set-up attribute (stop_action, polarity, mode)."""
+        try:
+            fd = self._io.open(device_dir + '/' + name, os.O_WRONLY)
+        except OSError as e:
+            raise Ev3SetupError(['port {}: cannot open {}: {}'.format(port, name, e)])
+        try:
+            self._setup_write(port, name, fd, text)
+        finally:
+            self._io.close(fd)
+
+    def read_battery_v(self):
+        """Battery voltage in volts (sysfs gives microvolts)."""
+        try:
+            return int(self._pread(self._battery_fd, _READ_BYTES, 0)) * 1e-6
+        except (OSError, ValueError) as e:
+            raise Ev3ReadError('battery', 'voltage_now', 'reading', e)
+
+    def _stop_writes(self, writes, during):
+        """Each (port, attribute, fd, bytes) written, whatever fails. -> the failures as strings."""
+        failures = []
+        for port, name, fd, data in writes:
+            if fd < 0:
+                continue
+            try:
+                self._pwrite(fd, data, 0)
+            except Exception as e:  # stopping must go on, whatever went wrong
+                failures.append('port {}: writing {} during {} failed: {}'.format(port, name, during, e))
+        return failures
+
+    def stop_all(self):
+        """Stop every motor. Never raises; idempotent. -> the failures as strings."""
+        raise NotImplementedError
+
+    def _forget_fds(self):
+        """After close: the subclass drops its descriptors, so stop_all writes nothing."""
+
+    def close(self):
+        """Stop the motors (failures logged), then close every descriptor. Idempotent."""
+        if self._closed:
+            return
+        self._closed = True
+        for failure in self.stop_all():
+            _LOG.error(failure)
+        fds, self._fds = self._fds, []
+        for fd in fds:
+            try:
+                self._io.close(fd)
+            except OSError as e:
+                _LOG.warning('closing fd %d: %s', fd, e)
+        self._battery_fd = -1
+        self._forget_fds()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+class Ev3Devices(SysfsDevices):
+    """Devices on an ev3dev sysfs tree (the real /sys/class, or hostsim.world.fake_ev3's).
 
     ``io`` provides open/pread/pwrite/close with the signatures of :mod:`os` (the default);
     tests pass a counting one. Raises Ev3SetupError naming every missing or wrong device;
@@ -202,14 +322,10 @@ class Ev3Devices(object):
     """
 
     def __init__(self, config, sysfs_root='/sys/class', io=os):
-        self._io = io
-        self._pread = io.pread
-        self._pwrite = io.pwrite
-        self._fds = []
+        SysfsDevices.__init__(self, io)
         self._duty_fds = ()
         self._cmd_fds = ()
         self._last = [0, 0, 0, 0]
-        self._closed = False
         motors, gyro, stop_action = device_spec(config)
         self._motor_ports = tuple(port for port, _ in motors)
         self._gyro_port = gyro[0]
@@ -223,27 +339,16 @@ class Ev3Devices(object):
 
     # ------------------------------------------------------------------ start-up
     def _open(self, sysfs_root):
-        problems = []
-
-        def open_attr(port, name, flags, path=None):
-            path = path or self.paths[port] + '/' + name
-            try:
-                fd = self._io.open(path, flags)
-            except OSError as e:
-                problems.append('port {}: cannot open {}: {}'.format(port, name, e))
-                return -1
-            self._fds.append(fd)
-            return fd
+        def open_attr(port, name, flags):
+            return self._open_attr(port, name, flags, self.paths[port] + '/' + name)
 
         ports = self._motor_ports
         pos = tuple(open_attr(p, 'position', os.O_RDONLY) for p in ports)
         duty = tuple(open_attr(p, 'duty_cycle_sp', os.O_WRONLY) for p in ports)
         cmd = tuple(open_attr(p, 'command', os.O_WRONLY) for p in ports)
         gyro = open_attr(self._gyro_port, 'bin_data', os.O_RDONLY)
-        self._battery_fd = open_attr('battery', BATTERY_PATH, os.O_RDONLY,
-                                     sysfs_root + '/' + BATTERY_PATH)
-        if problems:
-            raise Ev3SetupError(problems)
+        self._open_battery(sysfs_root)
+        self._opened()
         self._read_fds = pos + (gyro,)
         self._read_names = tuple((p, 'position') for p in ports) + ((self._gyro_port, 'bin_data'),)
         self._duty_fds = duty
@@ -252,26 +357,10 @@ class Ev3Devices(object):
     def _set_up(self, stop_action):
         for i, port in enumerate(self._motor_ports):
             self._setup_write(port, 'duty_cycle_sp', self._duty_fds[i], '0')
-            self._write_once(port, 'stop_action', stop_action)
-            self._write_once(port, 'polarity', 'normal')
+            self._write_once(port, self.paths[port], 'stop_action', stop_action)
+            self._write_once(port, self.paths[port], 'polarity', 'normal')
             self._setup_write(port, 'command', self._cmd_fds[i], 'run-direct')
-        self._write_once(self._gyro_port, 'mode', GYRO_MODE)
-
-    def _setup_write(self, port, name, fd, text):
-        try:
-            self._pwrite(fd, (text + '\n').encode('ascii'), 0)
-        except OSError as e:
-            raise Ev3SetupError(['port {}: writing {} {!r} failed: {}'.format(port, name, text, e)])
-
-    def _write_once(self, port, name, text):
-        try:
-            fd = self._io.open(self.paths[port] + '/' + name, os.O_WRONLY)
-        except OSError as e:
-            raise Ev3SetupError(['port {}: cannot open {}: {}'.format(port, name, e)])
-        try:
-            self._setup_write(port, name, fd, text)
-        finally:
-            self._io.close(fd)
+        self._write_once(self._gyro_port, self.paths[self._gyro_port], 'mode', GYRO_MODE)
 
     # ------------------------------------------------------------------ the tick
     def read_raw(self):
@@ -330,47 +419,15 @@ class Ev3Devices(object):
             raise Ev3WriteError(self._motor_ports[where], 'duty_cycle_sp', 'writing', e)
 
     # ------------------------------------------------------------------ outside the tick
-    def read_battery_v(self):
-        """Battery voltage in volts (sysfs gives microvolts)."""
-        try:
-            return int(self._pread(self._battery_fd, _READ_BYTES, 0)) * 1e-6
-        except (OSError, ValueError) as e:
-            raise Ev3ReadError('battery', 'voltage_now', 'reading', e)
-
     def stop_all(self):
         """Duty 0, then command ``stop`` (applies stop_action), on every motor. Never raises; a
         failure on one motor or attribute does not keep the rest from stopping. Idempotent.
-        -> the failures as strings (also logged)."""
-        failures = []
-        for i, (port, duty_fd, cmd_fd) in enumerate(
-                zip(self._motor_ports, self._duty_fds, self._cmd_fds)):
-            for name, fd, data in (('duty_cycle_sp', duty_fd, b'0\n'),
-                                   ('command', cmd_fd, b'stop\n')):
-                try:
-                    self._pwrite(fd, data, 0)
-                except Exception as e:  # stopping must go on, whatever went wrong
-                    msg = 'port {}: writing {} during stop_all failed: {}'.format(port, name, e)
-                    _LOG.error(msg)
-                    failures.append(msg)
-            self._last[i] = 0
-        return failures
+        -> the failures as strings."""
+        writes = []
+        for port, duty_fd, cmd_fd in zip(self._motor_ports, self._duty_fds, self._cmd_fds):
+            writes += [(port, 'duty_cycle_sp', duty_fd, b'0\n'), (port, 'command', cmd_fd, b'stop\n')]
+        self._last[:] = [0, 0, 0, 0]
+        return self._stop_writes(writes, 'stop_all')
 
-    def close(self):
-        """Stop the motors, then close every descriptor. Idempotent."""
-        if self._closed:
-            return
-        self._closed = True
-        self.stop_all()
-        fds, self._fds = self._fds, []
-        for fd in fds:
-            try:
-                self._io.close(fd)
-            except OSError as e:
-                _LOG.warning('closing fd %d: %s', fd, e)
+    def _forget_fds(self):
         self._duty_fds = self._cmd_fds = ()
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.close()

@@ -49,9 +49,9 @@ import tipbot_fw
 from tipbot_fw import ev3io, logfile
 from tipbot_fw.clock import MonotonicClock
 from tipbot_fw.config import ConfigError, load_config
+from tipbot_fw.console import say
 from tipbot_fw.safety import (EXIT_DEVICES, EXIT_ERROR, EXIT_INTERRUPT, EXIT_INVALID, EXIT_OK,
-                              EXIT_REFUSED, DeviceFailure, LowBattery, SafetyStop, SignalGuard,
-                              outcome)
+                              EXIT_REFUSED, DeviceFailure, LowBattery, SafetyStop, run_guarded)
 
 KIND = 'identify'
 IDENTIFY_VERSION = 1
@@ -81,22 +81,20 @@ DEFAULTS = {
 _READ_BYTES = 32
 
 
-class SingleMotor(object):
+class SingleMotor(ev3io.SysfsDevices):
     """Raw access to one tacho motor and the battery: found with python-ev3dev2 (through
     tipbot_fw.ev3io's survey), then file descriptors opened once, ``pread``/``pwrite`` at 0.
 
     ``io``: open/pread/pwrite/close with the signatures of :mod:`os` (the default); tests pass
-    hostsim.fake_ev3.CountingIO. Ev3SetupError if there is no motor on the port or it cannot
+    hostsim's fake EV3 CountingIO. Ev3SetupError if there is no motor on the port or it cannot
     be set up; the motor is left stopped then.
     """
 
     def __init__(self, port, sysfs_root='/sys/class', io=os):
-        self.port = ev3io._short_port(port)
-        self._io = io
-        self.pread = io.pread
-        self._fds = []
-        self._closed = False
-        self.position_fd = self._duty_fd = self._cmd_fd = self._battery_fd = -1
+        ev3io.SysfsDevices.__init__(self, io)
+        self.port = ev3io.short_port(port)
+        self.pread = self._pread
+        self.position_fd = self._duty_fd = self._cmd_fd = -1
         self.path, self.driver, self.counts_per_rot = find_motor(self.port, sysfs_root)
         try:
             self._open(sysfs_root)
@@ -106,57 +104,25 @@ class SingleMotor(object):
             raise
 
     def _open(self, sysfs_root):
-        problems = []
-
-        def open_attr(name, flags, path=None):
-            path = path or self.path + '/' + name
-            try:
-                fd = self._io.open(path, flags)
-            except OSError as e:
-                problems.append('port {}: cannot open {}: {}'.format(self.port, name, e))
-                return -1
-            self._fds.append(fd)
-            return fd
+        def open_attr(name, flags):
+            return self._open_attr(self.port, name, flags, self.path + '/' + name)
 
         self.position_fd = open_attr('position', os.O_RDONLY)
         self._duty_fd = open_attr('duty_cycle_sp', os.O_WRONLY)
         self._cmd_fd = open_attr('command', os.O_WRONLY)
-        self._battery_fd = open_attr('voltage_now', os.O_RDONLY,
-                                     sysfs_root + '/' + ev3io.BATTERY_PATH)
-        if problems:
-            raise ev3io.Ev3SetupError(problems)
+        self._open_battery(sysfs_root)
+        self._opened()
 
     def _set_up(self):
-        self._setup_write('duty_cycle_sp', self._duty_fd, '0')
-        for name, text in (('stop_action', 'coast'), ('polarity', 'normal')):
-            try:
-                fd = self._io.open(self.path + '/' + name, os.O_WRONLY)
-            except OSError as e:
-                raise ev3io.Ev3SetupError(['port {}: cannot open {}: {}'.format(self.port, name, e)])
-            try:
-                self._setup_write(name, fd, text)
-            finally:
-                self._io.close(fd)
-
-    def _setup_write(self, name, fd, text):
-        try:
-            self._io.pwrite(fd, (text + '\n').encode('ascii'), 0)
-        except OSError as e:
-            raise ev3io.Ev3SetupError(['port {}: writing {} {!r} failed: {}'.format(
-                self.port, name, text, e)])
+        self._setup_write(self.port, 'duty_cycle_sp', self._duty_fd, '0')
+        self._write_once(self.port, self.path, 'stop_action', 'coast')
+        self._write_once(self.port, self.path, 'polarity', 'normal')
 
     def _write(self, name, fd, data):
         try:
-            self._io.pwrite(fd, data, 0)
+            self._pwrite(fd, data, 0)
         except OSError as e:
             raise ev3io.Ev3WriteError(self.port, name, 'writing', e)
-
-    def read_battery_v(self):
-        """Battery voltage in volts (sysfs gives microvolts)."""
-        try:
-            return int(self.pread(self._battery_fd, _READ_BYTES, 0)) * 1e-6
-        except (OSError, ValueError) as e:
-            raise ev3io.Ev3ReadError('battery', 'voltage_now', 'reading', e)
 
     def run_direct(self, duty):
         """Duty (int percent) then ``run-direct``: the motor starts during the second write."""
@@ -168,53 +134,28 @@ class SingleMotor(object):
         self._write('command', self._cmd_fd, b'stop\n')
         self._write('duty_cycle_sp', self._duty_fd, b'0\n')
 
-    def stop(self):
+    def stop_all(self):
         """``stop`` and duty 0. Never raises; -> the failures as strings."""
-        failures = []
-        for name, fd, data in (('command', self._cmd_fd, b'stop\n'),
-                               ('duty_cycle_sp', self._duty_fd, b'0\n')):
-            if fd < 0:
-                continue
-            try:
-                self._io.pwrite(fd, data, 0)
-            except Exception as e:   # stopping must go on, whatever went wrong
-                failures.append('port {}: writing {} during stop failed: {}'.format(self.port, name, e))
-        return failures
+        return self._stop_writes([(self.port, 'command', self._cmd_fd, b'stop\n'),
+                                  (self.port, 'duty_cycle_sp', self._duty_fd, b'0\n')], 'stop')
 
-    def close(self):
-        """Stop the motor, then close every descriptor. Idempotent."""
-        if self._closed:
-            return
-        self._closed = True
-        self.stop()
-        fds, self._fds = self._fds, []
-        for fd in fds:
-            try:
-                self._io.close(fd)
-            except OSError:
-                pass
-        self.position_fd = self._duty_fd = self._cmd_fd = self._battery_fd = -1
+    def _forget_fds(self):
+        self.position_fd = self._duty_fd = self._cmd_fd = -1
 
 
 def find_motor(port, sysfs_root='/sys/class'):
     """-> (device dir, driver_name, count_per_rot) of the tacho motor on ``port``.
     Ev3SetupError if there is none (the message lists the ports that have one)."""
-    import ev3dev2
-    saved_root = ev3dev2.Device.DEVICE_ROOT_PATH
-    ev3dev2.Device.DEVICE_ROOT_PATH = sysfs_root
-    try:
+    with ev3io.under_root(sysfs_root) as ev3dev2:
         try:
-            found = ev3io._survey(ev3dev2, 'tacho-motor', 'motor*')
+            found = ev3io.survey(ev3dev2, 'tacho-motor', 'motor*')
         except OSError as e:
             raise ev3io.Ev3SetupError(['{}: cannot list tacho motors: {}'.format(sysfs_root, e)])
         if port not in found:
             raise ev3io.Ev3SetupError(['port {}: no motor found (tacho motors on: {})'.format(
                 port, ', '.join(sorted(found)) or 'none')])
         path, driver = found[port]
-        dev = ev3dev2.Device('tacho-motor', os.path.basename(path), name_exact=True)
-        return path, driver, dev.get_attr_int(None, 'count_per_rot')[1]
-    finally:
-        ev3dev2.Device.DEVICE_ROOT_PATH = saved_root
+        return path, driver, ev3io.count_per_rot(ev3dev2, path)
 
 
 class Recorder(object):
@@ -332,16 +273,11 @@ def write_identify_log(path, header, rows):
     logfile.write_log(path, header, body.reshape(-1, N_COLUMNS), columns=COLUMNS)
 
 
-def _say(msg):
-    sys.stderr.write('tipbot: {}\n'.format(msg))
-    sys.stderr.flush()
-
-
 def run_identify(motor, clock, duty=DEFAULTS['duty'], seconds=DEFAULTS['seconds'],
                  rundown_seconds=DEFAULTS['rundown_seconds'], still_seconds=DEFAULTS['still_seconds'],
                  period_s=DEFAULTS['period_s'], keepalive_s=DEFAULTS['keepalive_s'],
                  battery_period_s=DEFAULTS['battery_period_s'], min_battery_v=None,
-                 log_path=None, header_extra=None, say=_say):
+                 log_path=None, header_extra=None, say=say):
     """Record the standstill, the drive at ``duty`` for ``seconds`` and the coasting run-down.
     -> (exit code, log header). Never raises; the motor is stopped on every exit, then the
     log (if log_path) is written with what was recorded."""
@@ -361,47 +297,35 @@ def run_identify(motor, clock, duty=DEFAULTS['duty'], seconds=DEFAULTS['seconds'
     }
     header.update(header_extra or {})
     rec = Recorder(motor, clock, period_s, keepalive_s, battery_period_s)
-    t0 = None
-    error = None
-    guard = SignalGuard()
-    try:
+    times = {}    # t0: the drive command's time, the origin of the log's times
+
+    def body():
         try:
-            guard.install()
-            try:
-                bv = rec.read_battery()
-            except (OSError, ValueError) as e:
-                raise DeviceFailure('battery read failed: {}'.format(e))
-            header['battery_v_start'] = bv
-            if min_battery_v is not None and bv < min_battery_v:
-                raise LowBattery('battery at {:.2f} V is below limits.min_battery_v = {} V: charge it'.format(
-                    bv, min_battery_v))
-            rec.record(PHASE_STILL, 0, clock.now() + still_seconds)
-            t0 = clock.now()
-            try:
-                motor.run_direct(duty)
-            except OSError as e:
-                raise DeviceFailure(str(e))
-            t1 = clock.now()
-            header['drive_command_s'] = [0.0, t1 - t0]
-            rec.record(PHASE_DRIVE, duty, t0 + seconds)
-            tc = clock.now()
-            try:
-                motor.coast()
-            except OSError as e:
-                raise DeviceFailure(str(e))
-            header['coast_command_s'] = [tc - t0, clock.now() - t0]
-            header['rundown_end'] = rec.record(PHASE_COAST, 0, tc + rundown_seconds, still_seconds)
-        except BaseException as e:
-            error = e
-        finally:
-            guard.disarm()
-    finally:
-        failures = motor.stop()
-        for f in failures:
-            say(f)
-    # From here on a signal is only counted (guard disarmed): the log gets written.
-    try:
-        reason, code, msg = outcome(error)
+            bv = rec.read_battery()
+        except (OSError, ValueError) as e:
+            raise DeviceFailure('battery read failed: {}'.format(e))
+        header['battery_v_start'] = bv
+        if min_battery_v is not None and bv < min_battery_v:
+            raise LowBattery('battery at {:.2f} V is below limits.min_battery_v = {} V: charge it'.format(
+                bv, min_battery_v))
+        rec.record(PHASE_STILL, 0, clock.now() + still_seconds)
+        t0 = times['t0'] = clock.now()
+        try:
+            motor.run_direct(duty)
+        except OSError as e:
+            raise DeviceFailure(str(e))
+        t1 = clock.now()
+        header['drive_command_s'] = [0.0, t1 - t0]
+        rec.record(PHASE_DRIVE, duty, t0 + seconds)
+        tc = clock.now()
+        try:
+            motor.coast()
+        except OSError as e:
+            raise DeviceFailure(str(e))
+        header['coast_command_s'] = [tc - t0, clock.now() - t0]
+        header['rundown_end'] = rec.record(PHASE_COAST, 0, tc + rundown_seconds, still_seconds)
+
+    def finish(reason, code, msg):
         header.update(stop_reason=reason, stop_message=msg, exit_code=code,
                       stop_wall_time_s=time.time())
         header['reads'] = dict((PHASE_NAMES[p], n) for p, n in rec.reads.items())
@@ -412,8 +336,8 @@ def run_identify(motor, clock, duty=DEFAULTS['duty'], seconds=DEFAULTS['seconds'
         header['rows'] = rec.nrows()
         if rec.battery_reads:
             header['battery_v_end'] = rec.battery_reads[-1][1]
-        if t0 is None:   # never driven: times from the first read
-            t0 = rec.rows[0] if len(rec.rows) else 0.0
+        # never driven: times from the first read
+        t0 = times.get('t0', rec.rows[0] if len(rec.rows) else 0.0)
         written = False
         if log_path and rec.nrows():
             try:
@@ -425,8 +349,8 @@ def run_identify(motor, clock, duty=DEFAULTS['duty'], seconds=DEFAULTS['seconds'
                     code = header['exit_code'] = EXIT_ERROR
         say('stopped: {} (exit {}); {}'.format(msg, code, _summary(header, rec, log_path if written else None)))
         return code, header
-    finally:
-        guard.restore()
+
+    return run_guarded(body, motor.stop_all, finish, say)
 
 
 def _summary(header, rec, log_path):
@@ -499,7 +423,7 @@ def add_arguments(sp):
 
 def _role_of(config, port):
     for role, p in sorted(config['ports'].items()):
-        if ev3io._short_port(p) == port and role != 'gyro':
+        if ev3io.short_port(p) == port and role != 'gyro':
             return role
     return None
 
@@ -526,7 +450,7 @@ def _confirm(motor, args, battery_v, stdin, say):
     return True
 
 
-def main_identify(args, say=_say, stdin=None, clock=None, io=os):
+def main_identify(args, say=say, stdin=None, clock=None, io=os):
     """The identify subcommand (tipbot_fw.cli). -> exit code."""
     stdin = sys.stdin if stdin is None else stdin
     try:

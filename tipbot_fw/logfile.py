@@ -18,7 +18,7 @@ _CRC = struct.Struct('<I')
 STATE_NAMES = ('d_r', 'd_l', 'th1', 'th2', 'th3', 'd_r_dot', 'd_l_dot', 'th1_dot', 'th2_dot', 'th3_dot')
 STATE_UNITS = ('m', 'm', 'rad', 'rad', 'rad', 'm/s', 'm/s', 'rad/s', 'rad/s', 'rad/s')
 INPUT_NAMES = ('r', 'l', 'th1', 'th2', 'th3')
-_ACTUATED = ('r', 'l', 'th2', 'th3')
+ACTUATED_NAMES = ('r', 'l', 'th2', 'th3')
 
 # File layout (docs/log-format.md).
 COLUMNS = ([('time_s', 's'), ('tick_s', 's'),
@@ -62,7 +62,7 @@ FLAGS = col('flags')
 MEM_NAMES = (['t_start', 't_written', 'enc_r', 'enc_l', 'enc_2', 'enc_3', 'gyro_angle', 'gyro_rate',
               'battery_v', 'gyro_bias', 'flags', 'duty_r', 'duty_l', 'duty_2', 'duty_3']
              + ['y_' + n for n in STATE_NAMES] + ['xt_' + n for n in STATE_NAMES]
-             + ['w_' + n for n in _ACTUATED] + ['dcmd_' + n for n in _ACTUATED])
+             + ['w_' + n for n in ACTUATED_NAMES] + ['dcmd_' + n for n in ACTUATED_NAMES])
 MEM_COLUMNS = len(MEM_NAMES)
 MEM_ROW_BYTES = 8 * MEM_COLUMNS
 MEM_ENC = MEM_NAMES.index('enc_r')
@@ -74,8 +74,8 @@ TIMES = struct.Struct('<2d')           # the clock at the tick's start and after
                                        # packed by the loop, made time_s and tick_s on writing
 _COPIED = [(i, MEM_NAMES.index(n)) for i, n in enumerate(COLUMN_NAMES) if n in MEM_NAMES]
 _DERIVED = [(col('u_' + n), MEM_NAMES.index('duty_' + d), k) for k, (n, d) in
-            enumerate(zip(_ACTUATED, ('r', 'l', '2', '3')))] + \
-           [(col('u_cmd_' + n), MEM_NAMES.index('dcmd_' + n), k) for k, n in enumerate(_ACTUATED)]
+            enumerate(zip(ACTUATED_NAMES, ('r', 'l', '2', '3')))] + \
+           [(col('u_cmd_' + n), MEM_NAMES.index('dcmd_' + n), k) for k, n in enumerate(ACTUATED_NAMES)]
 
 # flags bits
 FLAG_BITS = {

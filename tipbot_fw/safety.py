@@ -141,3 +141,35 @@ class SignalGuard(object):
         for sig, handler in self._previous.items():
             signal.signal(sig, signal.SIG_DFL if handler is None else handler)
         self._previous = {}
+
+
+def run_guarded(body, stop_motors, finish, say):
+    """The shutdown skeleton of everything that drives motors (tipbot_fw.session, tipbot_fw.identify).
+
+    body() runs with SIGTERM, SIGHUP and SIGINT turned into exceptions (SignalGuard). Whatever
+    ends it (completion, a planned stop, a signal, a bug), stop_motors() runs first: it returns
+    the failures as strings, each of which is said, and must not raise (if it does, that is said
+    too). Then finish(reason, exit code, message) runs with further signals only counted, so a
+    second Ctrl-C cannot cut the log short; its result is returned. Never raises unless finish does.
+    """
+    error = None
+    guard = SignalGuard()
+    try:
+        try:
+            guard.install()
+            body()
+        except BaseException as e:
+            error = e
+        finally:
+            guard.disarm()
+    finally:
+        try:
+            failures = stop_motors() or ()
+        except Exception as e:   # stopping must not raise; if it does, say so loudly
+            failures = ['stopping the motors failed: {!r}'.format(e)]
+        for failure in failures:
+            say(failure)
+    try:
+        return finish(*outcome(error))
+    finally:
+        guard.restore()

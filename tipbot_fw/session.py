@@ -15,7 +15,8 @@ from tipbot_fw.config import motor_polarity
 from tipbot_fw.core import Core
 from tipbot_fw.cues import OwnerCues
 from tipbot_fw.loop import ControlLoop
-from tipbot_fw.safety import EXIT_ERROR, EXIT_OK, DeviceFailure, LowBattery, SignalGuard, outcome
+from tipbot_fw.console import say
+from tipbot_fw.safety import EXIT_ERROR, EXIT_OK, DeviceFailure, LowBattery, outcome, run_guarded
 
 
 def base_header(gains, config, duration_s):
@@ -37,18 +38,14 @@ def base_header(gains, config, duration_s):
     }
 
 
-def _say(msg):
-    sys.stderr.write('tipbot: {}\n'.format(msg))
-    sys.stderr.flush()
-
-
 def run_session(devices, gains, config, clock, log_path=None, duration_s=None,
-                realtime_priority=None, say=_say, cues=None):
+                realtime_priority=None, say=say, cues=None):
     """Balance until duration_s (None: until stopped). -> (exit code, log header dict).
 
-    Never raises; devices.stop_all() is called on every exit. The log (if log_path) is written
-    on every exit too, with the rows recorded so far. ``cues`` (tipbot_fw.cues.OwnerCues by
-    default) tells the owner to hold the robot, then to let go.
+    Never raises; devices.stop_all() is called on every exit (tipbot_fw.safety.run_guarded).
+    The log (if log_path) is written on every exit too, with the rows recorded so far.
+    ``cues`` (tipbot_fw.cues.OwnerCues by default) tells the owner to hold the robot, then
+    to let go.
     """
     cues = OwnerCues() if cues is None else cues
     if realtime_priority is None:
@@ -56,54 +53,41 @@ def run_session(devices, gains, config, clock, log_path=None, duration_s=None,
     header = base_header(gains, config, duration_s)
     header['counts_per_rot'] = list(devices.counts_per_rot)
     log = logfile.LogBuffer(_log_rows(config, gains.ts_s, duration_s))
-    loop = None
-    core = None
-    error = None
-    guard = SignalGuard()
-    try:
+    run = {}    # what body() got to build: the core and the loop
+
+    def body():
+        lim = config['limits']
         try:
-            guard.install()
-            lim = config['limits']
-            try:
-                bv = devices.read_battery_v()
-            except (OSError, ValueError) as e:
-                raise DeviceFailure('battery read failed: {}'.format(e))
-            header['battery_v_start'] = bv
-            if bv < lim['min_battery_v']:
-                raise LowBattery('battery at {:.2f} V is below limits.min_battery_v = {} V: charge it'.format(
-                    bv, lim['min_battery_v']))
-            cal_config = config['gyro_calibration']
-            cues.hold_still(cal_config['settle_s'] + cal_config['duration_s'])
-            cal = calibrate_gyro(devices, clock, gains.ts_s, cal_config)
-            header['calibration'] = cal.as_dict()
-            core = Core(gains, config, cal.gyro_bias_dps, devices.counts_per_rot)
-            loop = ControlLoop(devices, core, clock, log, gains.ts_s, bv,
-                               battery_period_s=config['battery_period_s'],
-                               max_consecutive_overruns=lim['max_consecutive_overruns'],
-                               duration_s=duration_s, realtime_priority=realtime_priority)
-            cues.let_go()
-            loop.run()
-        except BaseException as e:
-            error = e
-        finally:
-            guard.disarm()
-    finally:
-        try:
-            devices.stop_all()
-        except Exception as e:   # stop_all must not raise; if it does, say so loudly
-            say('stop_all failed: {!r}'.format(e))
-    # From here on a signal is only counted (guard disarmed): the log gets written.
-    try:
-        reason, code, msg = outcome(error)
+            bv = devices.read_battery_v()
+        except (OSError, ValueError) as e:
+            raise DeviceFailure('battery read failed: {}'.format(e))
+        header['battery_v_start'] = bv
+        if bv < lim['min_battery_v']:
+            raise LowBattery('battery at {:.2f} V is below limits.min_battery_v = {} V: charge it'.format(
+                bv, lim['min_battery_v']))
+        cal_config = config['gyro_calibration']
+        cues.hold_still(cal_config['settle_s'] + cal_config['duration_s'])
+        cal = calibrate_gyro(devices, clock, gains.ts_s, cal_config)
+        header['calibration'] = cal.as_dict()
+        run['core'] = Core(gains, config, cal.gyro_bias_dps, devices.counts_per_rot)
+        run['loop'] = ControlLoop(devices, run['core'], clock, log, gains.ts_s, bv,
+                                  battery_period_s=config['battery_period_s'],
+                                  max_consecutive_overruns=lim['max_consecutive_overruns'],
+                                  duration_s=duration_s, realtime_priority=realtime_priority)
+        cues.let_go()
+        run['loop'].run()
+
+    def finish(reason, code, msg):
         header['stop_reason'] = reason
         header['stop_message'] = msg
         header['exit_code'] = code
         header['stop_wall_time_s'] = time.time()
+        core = run.get('core')
         if core is not None and core.x0 is not None:
             header['encoder_offsets'] = list(core.chain.offsets)
             header['x_tilde_0'] = core.x0
-        if loop is not None:
-            header['loop'] = loop.stats.as_dict()
+        if 'loop' in run:
+            header['loop'] = run['loop'].stats.as_dict()
         header['first_tick'] = log.first_tick()
         header['ticks'] = log.count
         if log_path:
@@ -115,11 +99,11 @@ def run_session(devices, gains, config, clock, log_path=None, duration_s=None,
                     code = header['exit_code'] = EXIT_ERROR
         say('stopped: {} (exit {}, {} ticks)'.format(msg, code, log.count))
         return code, header
-    finally:
-        guard.restore()
+
+    return run_guarded(body, devices.stop_all, finish, say)
 
 
-def log_refused_start(log_path, gains, config, duration_s, error, say=_say):
+def log_refused_start(log_path, gains, config, duration_s, error, say=say):
     """The log of a run refused before any device was set up (error: a SafetyStop): the
     header only, with why. Never raises."""
     header = base_header(gains, config, duration_s)

@@ -4,25 +4,25 @@ Runs scenarios/section7, section8, appendix_d (the paper's) and section8_physica
 robot's gains on the physical model) in all their modes, a short region-of-attraction and
 Monte Carlo study, writes everything under out/sim/ (per scenario: metrics.json, figures,
 runs.npz; robustness/; report.md) and prints the summary tables. Builds a missing gains file
-first (hostsim.gains). Exit status 1 if a scenario's expectations fail.
+first (python -m hostsim gains). Exit status 1 if a scenario's expectations fail.
 """
 import argparse
 import os
 import sys
 import time
 
-from hostsim.params import REPO_ROOT
+from hostsim.paths import REPO_ROOT, out_dir
 
 SCENARIOS = ("section7", "section8", "appendix_d", "section8_physical")
 GAINS = ("paper", "physical")
 
 
 def ensure_gains(say):
-    from hostsim import gains
+    from hostsim.model import gains
     for name in GAINS:
         path = os.path.join(gains.DEFAULT_OUT_DIR, name + ".json")
         if not os.path.exists(path):
-            say("%s is missing: generating it (python -m hostsim.gains --variant %s)" % (os.path.relpath(path, REPO_ROOT), name))
+            say("%s is missing: generating it (python -m hostsim gains --variant %s)" % (os.path.relpath(path, REPO_ROOT), name))
             if gains.main(["--variant", name]) != 0:
                 raise SystemExit("could not generate %s" % path)
 
@@ -55,22 +55,26 @@ def firmware_note(docs, mc):
 
 
 def main(argv=None):
-    from hostsim import montecarlo, report, roa, runner
-    from hostsim.scenario import load_scenario
+    from hostsim.studies import montecarlo
+    from hostsim.studies import report
+    from hostsim.studies import roa
+    from hostsim.studies import runner
+    from hostsim.sim.scenario import load_scenario
 
     ap = argparse.ArgumentParser(prog="python -m hostsim sim", description=__doc__.split("\n\n")[0])
-    ap.add_argument("--out", default=os.path.join(REPO_ROOT, "out", "sim"))
-    ap.add_argument("--scenarios", nargs="+", default=list(SCENARIOS))
+    ap.add_argument("--out", default=out_dir("sim"), help="output directory (default out/sim)")
+    ap.add_argument("--scenarios", nargs="+", default=list(SCENARIOS),
+                    help="scenario names or files (default: %s)" % " ".join(SCENARIOS))
     ap.add_argument("--device", choices=("sysfs", "memory"), default="sysfs",
                     help="firmware device layer for the scenarios (default: the fake EV3 sysfs tree)")
     ap.add_argument("--mc-runs", type=int, default=40, help="Monte Carlo runs per gains file (default 40; "
                     "python -m hostsim montecarlo for the full study)")
-    ap.add_argument("--mc-duration", type=float, default=10.0)
-    ap.add_argument("--roa-tol", type=float, default=0.02)
+    ap.add_argument("--mc-duration", type=float, default=10.0, help="seconds per Monte Carlo run (default 10)")
+    ap.add_argument("--roa-tol", type=float, default=0.02, help="region of attraction bisection resolution in rad (default 0.02)")
     ap.add_argument("--kw0", action="store_true", help="also run the robustness with K_w = 0 (a diagnosis: "
                     "what the disturbance compensation costs or buys in the firmware)")
-    ap.add_argument("--no-robustness", action="store_true")
-    ap.add_argument("--jobs", type=int, default=None)
+    ap.add_argument("--no-robustness", action="store_true", help="skip the region of attraction and the Monte Carlo")
+    ap.add_argument("--jobs", type=int, default=None, help="worker processes (default: all cores)")
     args = ap.parse_args(argv)
 
     def say(msg):
@@ -84,7 +88,7 @@ def main(argv=None):
     for name in args.scenarios:
         sc = load_scenario(name)
         say("scenario %s" % name)
-        doc = runner.run_and_write(sc, os.path.join(args.out, sc["name"]), sysfs=args.device == "sysfs", say=say)
+        doc = runner.run_and_write(sc, os.path.join(args.out, sc.name), sysfs=args.device == "sysfs", say=say)
         docs.append(doc)
         ok &= doc["expect_ok"]
     roa_res = mc_res = None
@@ -118,6 +122,3 @@ def main(argv=None):
                                  time.perf_counter() - t_start))
     return 0 if ok else 1
 
-
-if __name__ == "__main__":
-    sys.exit(main())

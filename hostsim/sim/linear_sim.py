@@ -1,54 +1,24 @@
 """The paper's simulation: the detector and the controller on the linear or nonlinear model.
 
 Linear: plant x_{k+1} = A x_k + B (u_k + w_k) (input disturbances, E = B), full-state
-measurement y = x. Nonlinear: the same loop around hostsim.plant, the input (plus w) held
+measurement y = x. Nonlinear: the same loop around hostsim.world.plant, the input (plus w) held
 over each tick, y = x sampled at the ticks. The detector and the control law are those of
 docs/architecture.md, with the same saturation as the firmware. Written independently of
 tipbot_fw so that comparing the two tests the firmware's implementation.
 
-Everything here is SI (m, rad, V); a gains file in paper units (cm) is converted on load.
+Everything here is SI (m, rad, V): the gains are a tipbot_fw.gains.Gains, which the firmware's
+own loader validated and converted to SI (a gains file in paper units, cm, included).
 """
-import json
-
 import numpy as np
 
-from hostsim import design
-from hostsim.model import RobotModel, get_variant, state_scale_to_si
-from hostsim.plant import Plant
-from hostsim.scenario import disturbance_at
+from hostsim.model import design
+from hostsim.model.params import scaled_params
+from hostsim.model.equations import RobotModel, state_scale_to_si
+from hostsim.sim.result import RunResult
+from hostsim.world.plant import Plant
+from hostsim.sim.scenario import disturbance_at
 
 PLANT_DT_S = 0.001
-
-
-class GainSet:
-    """A gains file's matrices converted to SI (x_si = S x_file)."""
-
-    def __init__(self, path, doc=None):
-        if doc is None:
-            with open(path) as f:
-                doc = json.load(f)
-        self.path = path
-        self.doc = doc
-        self.variant = doc["model_variant"]
-        s = state_scale_to_si(get_variant(self.variant))
-        si = np.linalg.inv(s)
-        self.to_si = s
-        m = {k: np.array(doc[k], dtype=float) for k in ("A", "B", "C", "E", "K", "K_w", "L1", "L2", "G_w")}
-        self.A = s @ m["A"] @ si
-        self.B = s @ m["B"]
-        self.C = m["C"]
-        self.E = s @ m["E"]
-        self.K = m["K"] @ si
-        self.K_w = m["K_w"]
-        self.L1 = s @ m["L1"] @ si
-        self.L2 = s @ m["L2"] @ si
-        self.G_w = m["G_w"] @ si
-        self.ts_s = float(doc["ts_s"])
-        self.u_max_v = float(doc["u_max_v"])
-
-    def gain_to_si(self, k_file):
-        """A state-feedback gain in this file's units -> SI."""
-        return np.asarray(k_file, dtype=float) @ np.linalg.inv(self.to_si)
 
 
 def _saturate(u, limit):
@@ -96,10 +66,9 @@ def truth_linear_model(g, sc, params=None):
     The gains' own model when the scenario's plant is that model unperturbed (so Section 7
     runs on exactly the paper's matrices), else the linearization of the scenario's plant.
     """
-    if sc["plant_variant"] == g.variant and not sc["param_scale"]:
+    if sc.plant_variant == g.model_variant and not sc.param_scale:
         return g.A, g.B
-    from hostsim.fil import scaled_params
-    return design.discrete_model_si(RobotModel(sc["plant_variant"], scaled_params(sc["param_scale"], params)),
+    return design.discrete_model_si(RobotModel(sc.plant_variant, scaled_params(sc.param_scale, params)),
                                     g.ts_s)
 
 
@@ -117,19 +86,17 @@ class _Recorder:
         self.t[k], self.x[k], self.xhat[k], self.w[k] = t, x, ctl.xh, w
         self.u[k], self.u_unsat[k], self.w_hat[k] = ctl.u, ctl.u_unsat, ctl.w_hat
 
-    def result(self, n, **extra):
-        out = dict(t_s=self.t[:n], x=self.x[:n], xhat=self.xhat[:n], u=self.u[:n], u_unsat=self.u_unsat[:n],
-                   w=self.w[:n], w_hat=self.w_hat[:n], d_origin_m=0.0)
-        out.update(extra)
-        return out
+    def result(self, n, completed):
+        return RunResult(t_s=self.t[:n], x=self.x[:n], xhat=self.xhat[:n], u=self.u[:n], u_unsat=self.u_unsat[:n],
+                         w=self.w[:n], w_hat=self.w_hat[:n], completed=completed)
 
 
 def _simulate(g, sc, k_pd, x0, step, fallen):
-    n_steps = int(round(sc["duration_s"] / g.ts_s))
-    xhat0 = sc["xhat0_si"] if sc["xhat0_si"] is not None else sc["x0_si"]
+    n_steps = int(round(sc.duration_s / g.ts_s))
+    xhat0 = sc.xhat0_si if sc.xhat0_si is not None else sc.x0_si
     x = np.array(x0, dtype=float)
     ctl = HostController(g, xhat0, g.C @ x, k_pd)
-    pending = [np.zeros(5)] * sc["extra_delay_ticks"]
+    pending = [np.zeros(5)] * sc.extra_delay_ticks
     rec = _Recorder(n_steps)
     for k in range(n_steps + 1):
         t = k * g.ts_s
@@ -143,22 +110,21 @@ def _simulate(g, sc, k_pd, x0, step, fallen):
 
 
 def simulate_linear(g, sc, k_pd=None, params=None):
-    """Run a scenario on the linear model; returns a dict of arrays (SI)."""
+    """Run a scenario on the linear model -> RunResult (SI)."""
     a, b = truth_linear_model(g, sc, params)
-    return _simulate(g, sc, k_pd, sc["x0_si"], lambda x, u, t: a @ x + b @ u, lambda x: False)
+    return _simulate(g, sc, k_pd, sc.x0_si, lambda x, u, t: a @ x + b @ u, lambda x: False)
 
 
 def simulate_nonlinear(g, sc, k_pd=None, params=None, fall_rad=np.pi / 2):
-    """Run a scenario on the nonlinear plant with ideal measurement; dict of arrays (SI).
+    """Run a scenario on the nonlinear plant with ideal measurement -> RunResult (SI).
 
     Stops early (completed=False) when |th1| passes fall_rad: the model means nothing once
     the robot lies on the floor.
     """
-    from hostsim.fil import scaled_params
-    model = RobotModel(sc["plant_variant"], scaled_params(sc["param_scale"], params))
+    model = RobotModel(sc.plant_variant, scaled_params(sc.param_scale, params))
     to_si = np.diag(state_scale_to_si(model.variant))
-    plant = Plant(model, np.array(sc["x0_si"]) / to_si, dt_s=PLANT_DT_S, method=sc["plant_method"])
-    pushes = sorted((p["t_s"], p["th1_dot_rad_s"]) for p in sc["pushes"])
+    plant = Plant(model, np.array(sc.x0_si) / to_si, dt_s=PLANT_DT_S, method=sc.plant_method)
+    pushes = sorted((p.t_s, p.th1_dot_rad_s) for p in sc.pushes)
 
     def step(x, u, t):
         t_end = t + g.ts_s
@@ -171,4 +137,4 @@ def simulate_nonlinear(g, sc, k_pd=None, params=None, fall_rad=np.pi / 2):
         plant.advance(u, t_end - t)
         return plant.x_si
 
-    return _simulate(g, sc, k_pd, sc["x0_si"], step, lambda x: abs(x[2]) > fall_rad)
+    return _simulate(g, sc, k_pd, sc.x0_si, step, lambda x: abs(x[2]) > fall_rad)

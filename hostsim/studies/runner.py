@@ -4,27 +4,30 @@
 ``run_and_write``. Run labels are ``<mode>/<controller>`` (``linear/optimal``,
 ``firmware/pd``, ...).
 """
+import dataclasses
 import json
 import os
 import time
 
 import numpy as np
 
-from hostsim import metrics as metrics_mod
-from hostsim.metrics import STATE_UNIT_GROUPS
-from hostsim.fil import pd_gains_document, run_firmware
-from hostsim.linear_sim import GainSet, simulate_linear, simulate_nonlinear
-from hostsim.pd import pd_for_gains
+from hostsim.sim import metrics as metrics_mod
+from hostsim.sim.metrics import STATE_UNIT_GROUPS
+from hostsim.sim.fil import pd_gains_document, run_firmware
+from hostsim.sim.linear_sim import simulate_linear, simulate_nonlinear
+from hostsim.model.pd import pd_for_gains
+from tipbot_fw.gains import load_gains
 
 
 def run_scenario(sc, modes=None, sysfs=True, say=None):
-    """-> (GainSet, {label: run dict}) for every mode x controller of the scenario."""
-    gs = GainSet(sc["gains"])
+    """-> (Gains, {label: RunResult}) for every mode x controller of the scenario."""
+    gs = load_gains(sc.gains)
     runs = {}
-    for controller in sc["controllers"]:
-        k_pd_file = np.array(pd_for_gains(sc["gains"])["K"]) if controller == "pd" else None
-        k_pd = None if k_pd_file is None else gs.gain_to_si(k_pd_file)
-        for mode in modes or sc["modes"]:
+    for controller in sc.controllers:
+        k_pd_file = np.array(pd_for_gains(sc.gains)["K"]) if controller == "pd" else None
+        # x_file = S x_SI, so a gain on the file's state is K_file S on the SI one
+        k_pd = None if k_pd_file is None else k_pd_file * gs.state_scale[None, :]
+        for mode in modes or sc.modes:
             label = "%s/%s" % (mode, controller)
             t0 = time.perf_counter()
             if mode == "linear":
@@ -32,23 +35,27 @@ def run_scenario(sc, modes=None, sysfs=True, say=None):
             elif mode == "nonlinear":
                 run = simulate_nonlinear(gs, sc, k_pd)
             else:
-                doc = None if k_pd_file is None else pd_gains_document(gs.doc, k_pd_file)
+                doc = None if k_pd_file is None else pd_gains_document(_document(sc.gains), k_pd_file)
                 run = run_firmware(sc, gains_doc=doc, sysfs=sysfs)
-            run["wall_s"] = time.perf_counter() - t0
-            runs[label] = run
+            run = runs[label] = dataclasses.replace(run, wall_s=time.perf_counter() - t0)
             if say:
-                say("  %-20s %6.2f s simulated in %5.2f s" % (label, run["t_s"][-1], run["wall_s"]))
+                say("  %-20s %6.2f s simulated in %5.2f s" % (label, run.t_s[-1], run.wall_s))
     return gs, runs
+
+
+def _document(path):
+    with open(path) as f:
+        return json.load(f)
 
 
 def scenario_metrics(sc, gs, runs):
     out = {}
     for label, run in runs.items():
         m = metrics_mod.compute(run, sc, gs.u_max_v)
-        m["wall_s"] = round(run["wall_s"], 3)
-        m["real_time_factor"] = round(m["duration_s"] / run["wall_s"], 2) if run["wall_s"] > 0 else None
-        if "exit_code" in run:
-            m["firmware_exit_code"] = run["exit_code"]
+        m["wall_s"] = round(run.wall_s, 3)
+        m["real_time_factor"] = round(m["duration_s"] / run.wall_s, 2) if run.wall_s > 0 else None
+        if run.exit_code is not None:
+            m["firmware_exit_code"] = run.exit_code
         out[label] = m
     return out
 
@@ -58,29 +65,29 @@ def run_and_write(sc, out_dir, modes=None, sysfs=True, plots=True, say=None):
     os.makedirs(out_dir, exist_ok=True)
     gs, runs = run_scenario(sc, modes, sysfs, say)
     per_run = scenario_metrics(sc, gs, runs)
-    expect_report, ok = metrics_mod.check_expectations(per_run, sc["expect"])
+    expect_report, ok = metrics_mod.check_expectations(per_run, sc.expect)
     doc = {
-        "scenario": sc["name"],
-        "description": sc["description"],
-        "gains": os.path.basename(sc["gains"]),
-        "plant_variant": sc["plant_variant"],
-        "plant_method": sc["plant_method"],
-        "duration_s": sc["duration_s"],
+        "scenario": sc.name,
+        "description": sc.description,
+        "gains": os.path.basename(sc.gains),
+        "plant_variant": sc.plant_variant,
+        "plant_method": sc.plant_method,
+        "duration_s": sc.duration_s,
         "u_max_v": gs.u_max_v,
         "firmware_device": "fake EV3 sysfs" if sysfs else "in-memory",
         "runs": per_run,
         "expect": expect_report,
         "expect_ok": ok,
         # What the law asks for at the true initial state: the paper's Section 7 claim.
-        "k_x0_v": [float(v) for v in (-gs.K @ np.asarray(sc["x0_si"]))[[0, 1, 3, 4]]],
+        "k_x0_v": [float(v) for v in (-gs.K @ np.asarray(sc.x0_si))[[0, 1, 3, 4]]],
     }
-    if "pd" in sc["controllers"]:
-        doc["pd"] = pd_for_gains(sc["gains"])
+    if "pd" in sc.controllers:
+        doc["pd"] = pd_for_gains(sc.gains)
     with open(os.path.join(out_dir, "metrics.json"), "w") as f:
         json.dump(doc, f, indent=1, sort_keys=True)
     np.savez_compressed(os.path.join(out_dir, "runs.npz"), **_flatten(runs))
     if plots:
-        from hostsim import plots as plots_mod
+        from hostsim.studies import plots as plots_mod
         doc["plots"] = plots_mod.scenario_plots(sc, runs, gs.u_max_v, out_dir)
         with open(os.path.join(out_dir, "metrics.json"), "w") as f:
             json.dump(doc, f, indent=1, sort_keys=True)
@@ -88,12 +95,7 @@ def run_and_write(sc, out_dir, modes=None, sysfs=True, plots=True, say=None):
 
 
 def _flatten(runs):
-    out = {}
-    for label, run in runs.items():
-        for key, value in run.items():
-            if isinstance(value, np.ndarray):
-                out["%s/%s" % (label, key)] = value
-    return out
+    return {"%s/%s" % (label, key): value for label, run in runs.items() for key, value in run.arrays().items()}
 
 
 SUMMARY_COLUMNS = (
@@ -139,8 +141,8 @@ def main(argv=None):
     import sys
 
     from hostsim.errors import TipbotError
-    from hostsim.params import REPO_ROOT
-    from hostsim.scenario import MODES, load_scenario
+    from hostsim.paths import out_dir
+    from hostsim.sim.scenario import MODES, load_scenario
 
     ap = argparse.ArgumentParser(prog="python -m hostsim run", description="Run one scenario file.")
     ap.add_argument("scenario", help="scenario JSON file, or a name under scenarios/")
@@ -148,17 +150,17 @@ def main(argv=None):
     ap.add_argument("--modes", help="comma-separated subset of the scenario's modes (%s)" % ", ".join(MODES))
     ap.add_argument("--device", choices=("sysfs", "memory"), default="sysfs",
                     help="firmware device layer: the fake EV3 sysfs tree (default) or in-memory")
-    ap.add_argument("--no-plots", action="store_true")
+    ap.add_argument("--no-plots", action="store_true", help="write metrics.json and runs.npz only")
     args = ap.parse_args(argv)
     try:
         sc = load_scenario(args.scenario)
         modes = None
         if args.modes:
             modes = [m.strip() for m in args.modes.split(",") if m.strip()]
-            bad = [m for m in modes if m not in sc["modes"]]
+            bad = [m for m in modes if m not in sc.modes]
             if bad:
-                raise TipbotError("--modes: %r is not a mode of scenario %s (%s)" % (bad[0], sc["name"], ", ".join(sc["modes"])))
-        out = args.out or os.path.join(REPO_ROOT, "out", "run", sc["name"])
+                raise TipbotError("--modes: %r is not a mode of scenario %s (%s)" % (bad[0], sc.name, ", ".join(sc.modes)))
+        out = args.out or out_dir("run", sc.name)
         doc = run_and_write(sc, out, modes, sysfs=args.device == "sysfs", plots=not args.no_plots,
                             say=lambda m: print(m, file=sys.stderr))
     except TipbotError as exc:

@@ -1,7 +1,7 @@
 """Replay a run log on the host: the firmware's own signal chain, detector and controller.
 
     python -m hostsim replay LOG [--gains FILE] [--logged-gains FILE] [--out DIR] [--no-plots]
-    (also: python -m hostsim.replay ..., make replay LOG=... [GAINS=...])
+    (also: make replay LOG=... [GAINS=...])
 
 The logged raw readings (encoder counts, gyro angle and rate, battery voltage) go through
 tipbot_fw.replay, i.e. the very tipbot_fw.core.Core the robot ran, and what comes out is
@@ -36,15 +36,17 @@ from tipbot_fw import replay as fw_replay
 from tipbot_fw.config import ConfigError, config_from_overrides
 from tipbot_fw.gains import GainsError, load_gains
 
-REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-DEFAULT_OUT = os.path.join(REPO, "out", "replay")
+from hostsim.errors import TipbotError
+from hostsim.logs import read_log
+from hostsim.paths import GAINS_DIR, out_dir
+
+DEFAULT_OUT = out_dir("replay")
 DEFAULT_TOL = 1e-9
 # Header fields a replay needs (docs/log-format.md); a log without them is from another version.
 REQUIRED_HEADER = ("gains", "config", "calibration", "counts_per_rot", "first_tick", "ts_s")
-ACTUATED = ("r", "l", "th2", "th3")
 
 
-class ReplayError(Exception):
+class ReplayError(TipbotError):
     """The log or a gains file cannot be replayed; the message says why (exit status 2)."""
 
 
@@ -54,19 +56,11 @@ def load_log(path):
 
     header["config"] is the configuration in force, completed with this version's defaults
     for fields an older firmware did not have (notes say which)."""
-    if not os.path.isfile(path):
-        raise ReplayError("%s: no such log file" % path)
-    try:
-        header, rows = logfile.read_log(path)
-    except logfile.LogFormatError as e:
-        raise ReplayError(str(e))
-    except OSError as e:
-        raise ReplayError("%s: cannot read: %s" % (path, e))
+    header, rows, names = read_log(path, ReplayError)
     if header.get("kind", "run") != "run":
         raise ReplayError("%s: a log of kind %r, not a balance run: analyse it with `python -m hostsim %s`"
                           % (path, header["kind"], header["kind"]))
     written_by = header.get("versions", {}).get("tipbot_fw", "an unknown version")
-    names = [c.get("name") if isinstance(c, dict) else c for c in header.get("columns", [])]
     if names != list(logfile.COLUMN_NAMES):
         extra = sorted(set(names) - set(logfile.COLUMN_NAMES))
         missing = sorted(set(logfile.COLUMN_NAMES) - set(names))
@@ -128,7 +122,7 @@ def gains_candidates(log_path, header, explicit=()):
     logged_path = header.get("gains", {}).get("path")
     if logged_path:
         out.append(logged_path)
-    out += sorted(glob.glob(os.path.join(REPO, "gains", "*.json")))
+    out += sorted(glob.glob(os.path.join(GAINS_DIR, "*.json")))
     seen, unique = set(), []
     for p in out:
         key = os.path.abspath(p)
@@ -268,7 +262,7 @@ def replay_log(log_path, gains_path=None, logged_gains_path=None, tol=DEFAULT_TO
         r.other_gains_path = other
         r.other = replay_rows(header, rows, g, as_logged=False)
         r.other_u_diff = {}
-        for name in ACTUATED:
+        for name in logfile.ACTUATED_NAMES:
             c = logfile.col("u_" + name)
             d = r.other[:, c] - rows[:, c]
             r.other_u_diff[name] = (float(np.max(np.abs(d))), float(np.sqrt(np.mean(d * d))))
@@ -345,7 +339,7 @@ def plot(r, out_dir):
         series.append(("replayed (logged gains)", r.replayed, dict(color="tab:orange", lw=1.0, ls="--")))
     paths = []
     for what, names, units, ncols in (
-            ("inputs", ["u_" + n for n in ACTUATED], ["V"] * 4, 2),
+            ("inputs", ["u_" + n for n in logfile.ACTUATED_NAMES], ["V"] * 4, 2),
             ("estimates", ["xt_" + n for n in logfile.STATE_NAMES], list(logfile.STATE_UNITS), 2)):
         nrows = (len(names) + ncols - 1) // ncols
         fig, axes = plt.subplots(nrows, ncols, figsize=(11, 2.2 * nrows + 0.8), sharex=True, squeeze=False)
@@ -382,7 +376,7 @@ def main(argv=None):
                     help="gains to replay with: the logged ones (exact replay) or others (what-if)")
     ap.add_argument("--logged-gains", metavar="FILE", help="the gains file the robot ran, if not found by its hash")
     ap.add_argument("--out", metavar="DIR", default=DEFAULT_OUT, help="plot directory (default out/replay)")
-    ap.add_argument("--no-plots", action="store_true")
+    ap.add_argument("--no-plots", action="store_true", help="print the comparison only")
     ap.add_argument("--tol", type=float, default=DEFAULT_TOL, help="exactness tolerance (default 1e-9)")
     a = ap.parse_args(argv)
     try:
@@ -395,6 +389,3 @@ def main(argv=None):
     print(describe(r, a.tol))
     return 1 if r.exact is False else 0
 
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -16,14 +16,15 @@ state) and ``firmware`` (the firmware in the loop, told the start pose as an ope
 would configure it). The difference between the two is what the signal chain costs.
 """
 import argparse
+import dataclasses
 import json
 import os
-import sys
 import time
 
 import numpy as np
 
-from hostsim.params import REPO_ROOT
+from hostsim.paths import out_dir
+from tipbot_fw.gains import gains_from_dict
 
 ANGLES = {"th1": 2, "th2": 3, "th3": 4}
 RECOVERED_TH1_RAD = 0.05
@@ -40,27 +41,24 @@ def angle_limits():
 
 
 def recovered(run):
-    from hostsim.metrics import UPRIGHT_LIMIT_RAD
-    x = run["x"]
-    return bool(run.get("completed", True) and np.all(np.abs(x[:, 2]) < UPRIGHT_LIMIT_RAD)
+    from hostsim.sim.metrics import UPRIGHT_LIMIT_RAD
+    x = run.x
+    return bool(run.completed and np.all(np.abs(x[:, 2]) < UPRIGHT_LIMIT_RAD)
                 and abs(x[-1, 2]) < RECOVERED_TH1_RAD and np.all(np.abs(x[-1, 3:5]) < RECOVERED_TH23_RAD))
 
 
 def trial(base, gains_path, zero_kw, mode, angle, value):
     """One release from `angle` = value: recovered or not."""
-    from hostsim.fil import run_firmware
-    from hostsim.linear_sim import GainSet, simulate_nonlinear
-    from hostsim.montecarlo import gains_document
+    from hostsim.sim.fil import run_firmware
+    from hostsim.sim.linear_sim import simulate_nonlinear
+    from hostsim.studies.montecarlo import gains_document
 
-    sc = dict(base)
     x0 = [0.0] * 10
     x0[ANGLES[angle]] = float(value)
-    sc["x0_si"] = x0
-    sc["xhat0_si"] = None
-    sc["gains"] = gains_path
+    sc = dataclasses.replace(base, x0_si=tuple(x0), xhat0_si=None, gains=gains_path)
     doc = gains_document(gains_path, zero_kw)
     if mode == "nonlinear":
-        run = simulate_nonlinear(GainSet(gains_path, doc), sc)
+        run = simulate_nonlinear(gains_from_dict(doc, gains_path), sc)
     else:
         run = run_firmware(sc, gains_doc=doc, sysfs=False, keep_rows=False)
     return recovered(run)
@@ -98,13 +96,13 @@ def run_roa(gains_paths=DEFAULT_GAINS, modes=DEFAULT_MODES, tol=0.01, kw0=False,
             base=None, duration_s=None, kw0_modes=None):
     """Bisections for every gains file x mode x angle x sign (kw0: also K_w = 0 twins, in
     kw0_modes, default the same modes)."""
-    from hostsim.montecarlo import variants, warm_models
-    from hostsim.parallel import run_tasks
-    from hostsim.scenario import load_scenario
+    from hostsim.studies.montecarlo import variants, warm_models
+    from hostsim.sim.parallel import run_tasks
+    from hostsim.sim.scenario import load_scenario
 
-    base = dict(base or load_scenario(BASE_SCENARIO))
+    base = base or load_scenario(BASE_SCENARIO)
     if duration_s is not None:
-        base["duration_s"] = float(duration_s)
+        base = dataclasses.replace(base, duration_s=float(duration_s))
     limits = angle_limits()
     tasks = [(label, path, zk, base, mode, angle, sign, limits[angle], tol)
              for label, path, zk in variants(gains_paths, kw0)
@@ -112,9 +110,9 @@ def run_roa(gains_paths=DEFAULT_GAINS, modes=DEFAULT_MODES, tol=0.01, kw0=False,
              for angle in angles for sign in (1, -1)]
     t0 = time.perf_counter()
     rows = run_tasks(bisect, tasks, jobs=jobs, desc="region of attraction",
-                     warm=lambda: warm_models((base["plant_variant"],)))
-    return {"rows": rows, "wall_s": time.perf_counter() - t0, "tol_rad": tol, "duration_s": base["duration_s"],
-            "plant_variant": base["plant_variant"]}
+                     warm=lambda: warm_models((base.plant_variant,)))
+    return {"rows": rows, "wall_s": time.perf_counter() - t0, "tol_rad": tol, "duration_s": base.duration_s,
+            "plant_variant": base.plant_variant}
 
 
 def format_table(res):
@@ -142,7 +140,7 @@ def format_table(res):
 
 
 def write(res, out_dir):
-    from hostsim import plots
+    from hostsim.studies import plots
     os.makedirs(out_dir, exist_ok=True)
     with open(os.path.join(out_dir, "roa.json"), "w") as f:
         json.dump(res, f, indent=1, sort_keys=True)
@@ -151,12 +149,12 @@ def write(res, out_dir):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(prog="python -m hostsim roa", description=__doc__.split("\n\n")[0])
-    ap.add_argument("--gains", nargs="+", default=list(DEFAULT_GAINS))
+    ap.add_argument("--gains", nargs="+", default=list(DEFAULT_GAINS), help="gains files (default gains/paper.json gains/physical.json)")
     ap.add_argument("--modes", default=",".join(DEFAULT_MODES), help="comma-separated: nonlinear, firmware")
     ap.add_argument("--tol", type=float, default=0.01, help="bisection resolution in rad (default 0.01)")
     ap.add_argument("--kw0", action="store_true", help="also run each gains file with K_w = 0 (diagnosis)")
-    ap.add_argument("--jobs", type=int, default=None)
-    ap.add_argument("--out", default=os.path.join(REPO_ROOT, "out", "roa"))
+    ap.add_argument("--jobs", type=int, default=None, help="worker processes (default: all cores)")
+    ap.add_argument("--out", default=out_dir("roa"), help="output directory (default out/roa)")
     args = ap.parse_args(argv)
     modes = [m.strip() for m in args.modes.split(",") if m.strip()]
     bad = [m for m in modes if m not in DEFAULT_MODES]
@@ -170,6 +168,3 @@ def main(argv=None):
     print("wrote %s and %s" % (os.path.join(args.out, "roa.json"), os.path.join(args.out, fig)))
     return 0
 
-
-if __name__ == "__main__":
-    sys.exit(main())

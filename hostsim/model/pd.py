@@ -15,7 +15,7 @@ like-for-like: the best PD of this structure for the very cost the LQR minimizes
 
 The design runs in the gains file's own units (cm for the paper variant), from its A, B, Q,
 R and K, so each gains file gets its own PD (``pd_for_gains``, cached under .cache/pd/ by the
-hash of the gains file and of this module; ``python -m hostsim.pd [GAINS]`` prints it). Its
+hash of the gains file and of this module; ``python -m hostsim pd [GAINS]`` prints it). Its
 cost is ~20 % (paper) and ~4 % (physical) above the LQR's: close to optimal without a
 disturbance. What the PD lacks is the disturbance compensation: no K_w w^ term and no
 integral action, so a constant input disturbance shifts its equilibrium, where the optimal
@@ -23,25 +23,25 @@ controller cancels the disturbance one tick after the detector sees it. That is 
 difference Appendix D shows.
 
 Where the baseline runs:
-- linear and nonlinear modes: u = -K_pd y, the measurement itself (hostsim.linear_sim);
+- linear and nonlinear modes: u = -K_pd y, the measurement itself (hostsim.sim.linear_sim);
 - firmware in the loop: the firmware has one law, u = -K x~ - K_w w^, so it is given a
-  gains document with K = K_pd and K_w = 0 (hostsim.fil.pd_gains_document): the PD acts on
+  gains document with K = K_pd and K_w = 0 (hostsim.sim.fil.pd_gains_document): the PD acts on
   the estimate x~, which equals y after a few ticks (detector poles at 0.2; with C = I and
   L2 = E G_w the estimate's error does not depend on the disturbance).
 """
+import argparse
 import hashlib
 import json
 import os
-import sys
 
 import numpy as np
 from scipy.linalg import solve_discrete_lyapunov
 from scipy.optimize import minimize
 
 from hostsim.errors import DesignError
-from hostsim.params import REPO_ROOT
+from hostsim.paths import CACHE_DIR as _CACHE, GAINS_DIR, REPO_ROOT
 
-CACHE_DIR = os.path.join(REPO_ROOT, ".cache", "pd")
+CACHE_DIR = os.path.join(_CACHE, "pd")
 
 # For each free gain, the (row of K, column of x, coefficient) cells it fills.
 LAYOUT = (
@@ -134,8 +134,10 @@ def pd_for_gains(path):
 
 
 def main(argv=None):
-    argv = sys.argv[1:] if argv is None else argv
-    paths = argv or [os.path.join(REPO_ROOT, "gains", v + ".json") for v in ("paper", "physical")]
+    ap = argparse.ArgumentParser(prog="python -m hostsim pd", description=__doc__.split("\n\n")[0])
+    ap.add_argument("gains", nargs="*", metavar="GAINS",
+                    help="gains files (default gains/paper.json gains/physical.json)")
+    paths = ap.parse_args(argv).gains or [os.path.join(GAINS_DIR, v + ".json") for v in ("paper", "physical")]
     for path in paths:
         pd = pd_for_gains(path)
         print("%s: PD cost %.6g, LQR cost %.6g (x%.3f), spectral radius %.5f"
@@ -144,6 +146,3 @@ def main(argv=None):
             print("  %-9s %12.5g" % (name, value))
     return 0
 
-
-if __name__ == "__main__":
-    sys.exit(main())

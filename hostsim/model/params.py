@@ -6,15 +6,15 @@ field and names the first bad one.
 """
 import hashlib
 import json
-import math
 import os
 
-from hostsim.errors import ParameterError, read_json
+from hostsim.errors import ParameterError
+from hostsim.paths import REPO_ROOT
+from tipbot_fw import fields
+from tipbot_fw.config import MOTOR_ROLES
 
-REPO_ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 DEFAULT_PARAMS_PATH = os.path.join(REPO_ROOT, "params", "robot.json")
 
-MOTOR_ROLES = ("right_wheel", "left_wheel", "joint2", "joint3")
 MOTOR_FIELDS = ("beta_nm_s", "ke_v_s", "km_nm_a", "ra_ohm", "jm_kg_m2")
 
 # Lengths, masses and inertias must be > 0; friction may be 0 (a frictionless motor is a
@@ -29,34 +29,32 @@ REQUIRED = POSITIVE + NON_NEGATIVE
 
 def parse_params(doc, source="<parameters>"):
     """Validate a parameters document (the parsed JSON) and return ``{name: float}``."""
-    if not isinstance(doc, dict) or not isinstance(doc.get("parameters"), dict):
-        raise ParameterError("%s: expected an object with a 'parameters' object" % source)
-    entries = doc["parameters"]
-    unknown = sorted(set(entries) - set(REQUIRED))
-    if unknown:
-        raise ParameterError("%s: unknown parameter '%s'" % (source, unknown[0]))
+    f = fields.Fields(source, ParameterError)
+    if not isinstance(doc, dict):
+        raise ParameterError("%s: must be a JSON object" % source)
+    f.require(doc, ("parameters",))
+    entries = f.check("parameters", doc["parameters"], fields.obj)
+    f.known(entries, REQUIRED, "parameters.")
+    f.require(entries, REQUIRED, "parameters.")
     values = {}
     for name in REQUIRED:
-        if name not in entries:
-            raise ParameterError("%s: missing parameter '%s'" % (source, name))
         entry = entries[name]
         raw = entry.get("value") if isinstance(entry, dict) else entry
-        if isinstance(raw, bool) or not isinstance(raw, (int, float)):
-            raise ParameterError("%s: parameter '%s' is not a number: %r" % (source, name, raw))
-        value = float(raw)
-        if not math.isfinite(value):
-            raise ParameterError("%s: parameter '%s' is not finite: %r" % (source, name, raw))
-        if name in POSITIVE and value <= 0.0:
-            raise ParameterError("%s: parameter '%s' must be positive, got %r" % (source, name, raw))
-        if name in NON_NEGATIVE and value < 0.0:
-            raise ParameterError("%s: parameter '%s' must not be negative, got %r" % (source, name, raw))
-        values[name] = value
+        values[name] = f.number("parameters.%s" % name, raw, lo=0, lo_open=name in POSITIVE)
     return values
 
 
 def load_params(path=DEFAULT_PARAMS_PATH):
     """Read and validate a parameters file; errors name the file and the field."""
-    return parse_params(read_json(path, "parameters file", ParameterError), source=path)
+    return parse_params(fields.read_object(path, ParameterError), source=path)
+
+
+def scaled_params(scale, params=None):
+    """Parameters (default: the parameters file's) with multipliers applied: {name: factor}."""
+    p = dict(load_params() if params is None else params)
+    for name, factor in scale.items():
+        p[name] = p[name] * factor
+    return p
 
 
 def params_hash(values):

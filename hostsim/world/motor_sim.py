@@ -4,7 +4,7 @@ The motor (output-shaft quantities, SI, as in Table 2 of the paper)::
 
     J w' = Km i - beta w - Tc sgn(w),    i = (u - Ke w) / Ra      (inductance neglected)
 
-driven from what a client wrote into the fake sysfs tree (hostsim.fake_ev3.FakeEV3.poll):
+driven from what a client wrote into the fake sysfs tree (hostsim.world.fake_ev3.FakeEV3.poll):
 
 * ``run-direct`` at duty d (percent): u = d/100 x the battery's terminal voltage;
 * ``stop`` with stop_action ``coast``: open circuit, i = 0 (no back-EMF braking);
@@ -27,66 +27,26 @@ Two ways to run it:
 * real time, for the firmware as a separate process (``python3 -m tipbot_fw identify
   --sysfs-root DIR``)::
 
-      python -m hostsim.motor_sim --root /tmp/ev3 --motor 5 --realtime &
+      python -m hostsim motor-sim --root /tmp/ev3 --motor 5 --realtime &
       python3 -m tipbot_fw identify --port outA --yes --sysfs-root /tmp/ev3 --log m5.log
 
   (the duty takes effect at the first poll after the firmware wrote it, 0-1 ms late: an
   apparent dead time the host fit estimates).
 
-``python -m hostsim.motor_sim --motor 1 --log FILE`` writes a simulated identify log (lock-step).
+``python -m hostsim motor-sim --motor 1 --log FILE`` writes a simulated identify log (lock-step).
 """
 import argparse
 import math
 import os
 import signal
-import sys
 import tempfile
 import time
-from collections import namedtuple
 
 import numpy as np
 
-from hostsim.fake_ev3 import FakeEV3
+from hostsim.model.motors import TABLE2, TABLE2_DRIVER, MotorParams
+from hostsim.world.fake_ev3 import FakeEV3
 from tipbot_fw.clock import VirtualClock
-
-_Params = namedtuple("MotorParams", "beta_nm_s ke_v_s km_nm_a ra_ohm jm_kg_m2 coulomb_nm")
-
-
-class MotorParams(_Params):
-    """A motor's parameters (SI, output shaft). phi, alpha: G(s) = phi / (alpha s + 1) from
-    volts to rad/s (Section 4); tau_coast_s: the run-down's time constant Jm / beta."""
-
-    def __new__(cls, beta_nm_s, ke_v_s, km_nm_a, ra_ohm, jm_kg_m2, coulomb_nm=0.0):
-        return _Params.__new__(cls, float(beta_nm_s), float(ke_v_s), float(km_nm_a), float(ra_ohm),
-                               float(jm_kg_m2), float(coulomb_nm))
-
-    @property
-    def phi(self):
-        return self.km_nm_a / (self.ra_ohm * self.beta_nm_s + self.ke_v_s * self.km_nm_a)
-
-    @property
-    def alpha(self):
-        return self.ra_ohm * self.jm_kg_m2 / (self.ra_ohm * self.beta_nm_s + self.ke_v_s * self.km_nm_a)
-
-    @property
-    def tau_coast_s(self):
-        return self.jm_kg_m2 / self.beta_nm_s if self.beta_nm_s > 0 else math.inf
-
-
-#: Table 2 of the paper (beta, Ke, Km, Ra, Jm). Motors 1-4 are EV3 large motors, motor 5 the
-#: medium one (th3 joint); motor 4 is not used on the robot.
-TABLE2 = {
-    1: MotorParams(0.000486, 0.43798, 0.27063, 8.34, 0.00101),
-    2: MotorParams(0.000577, 0.35732, 0.24105, 9.01, 0.00125),
-    3: MotorParams(0.000458, 0.44706, 0.31059, 8.74, 0.00123),
-    4: MotorParams(0.000662, 0.44535, 0.30670, 8.47, 0.00118),
-    5: MotorParams(0.000206, 0.27480, 0.17340, 12.22, 0.00011),
-}
-#: Table 2's printed G(s): (phi, alpha) per motor.
-TABLE2_G = {1: (2.207, 0.0688), 2: (2.639, 0.1235), 3: (2.174, 0.0755), 4: (2.1563, 0.0707), 5: (3.45, 0.028)}
-#: ev3dev driver of each Table 2 motor.
-TABLE2_DRIVER = {1: "lego-ev3-l-motor", 2: "lego-ev3-l-motor", 3: "lego-ev3-l-motor", 4: "lego-ev3-l-motor",
-                 5: "lego-ev3-m-motor"}
 
 DEFAULT_BATTERY_V = 8.0
 DEFAULT_BATTERY_R_OHM = 0.1
@@ -286,19 +246,20 @@ def _params_from_args(a):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(prog="python -m hostsim.motor_sim", description=__doc__.split("\n\n")[0],
+    ap = argparse.ArgumentParser(prog="python -m hostsim motor-sim", description=__doc__.split("\n\n")[0],
                                  epilog=__doc__.split("\n\n", 1)[1],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--motor", type=int, choices=sorted(TABLE2), default=1, help="Table 2 motor (default 1)")
     for name in MotorParams._fields:
         ap.add_argument("--" + name.replace("_", "-"), dest=name, type=float, help="override Table 2's " + name)
     ap.add_argument("--driver", help="ev3dev driver (default: large motor for 1-4, medium for 5)")
-    ap.add_argument("--port", default="outA")
-    ap.add_argument("--battery-v", type=float, default=DEFAULT_BATTERY_V)
-    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--port", default="outA", help="the motor's port (default outA)")
+    ap.add_argument("--battery-v", type=float, default=DEFAULT_BATTERY_V,
+                    help="open-circuit battery voltage (default %g)" % DEFAULT_BATTERY_V)
+    ap.add_argument("--seed", type=int, default=0, help="seed of the encoder phase and battery noise")
     ap.add_argument("--log", metavar="FILE", help="lock-step: write a simulated identify log here")
-    ap.add_argument("--duty", type=int, default=100)
-    ap.add_argument("--seconds", type=float, default=2.0)
+    ap.add_argument("--duty", type=int, default=100, help="lock-step: duty in percent (default 100)")
+    ap.add_argument("--seconds", type=float, default=2.0, help="lock-step: drive time in s (default 2)")
     ap.add_argument("--period-ms", type=float, default=0.5, help="lock-step: time between reads (default 0.5)")
     ap.add_argument("--realtime", action="store_true", help="keep a fake EV3 tree in --root in step with the "
                     "motor on the wall clock until SIGTERM/SIGINT or --duration")
@@ -329,6 +290,3 @@ def main(argv=None):
           % (a.motor, driver, params.phi, params.alpha, params.tau_coast_s, code, header.get("rows", 0), log))
     return 0 if code == 0 else 1
 
-
-if __name__ == "__main__":
-    sys.exit(main())

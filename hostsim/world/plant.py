@@ -6,16 +6,16 @@ can be added for pushes and other external disturbances.
 
 Integration: classic RK4 (``method="rk4"``, the default and the reference) or Heun's
 second-order method (``"heun"``, half the derivative evaluations; its error against RK4 at
-1 ms is bounded by tests/test_sim_plant.py; ``python -m hostsim.bench`` times both). Without an
-external force the derivative comes from hostsim.fastdyn, which gives bit-for-bit the
+1 ms is bounded by tests/test_sim_plant.py; ``python -m hostsim bench-sim`` times both). Without an
+external force the derivative comes from hostsim.model.fastdyn, which gives bit-for-bit the
 numbers of the model's mass_matrix_forcing + solve_spd5 below at about half the cost.
 """
 import math
 
 import numpy as np
 
-from hostsim import fastdyn
-from hostsim.model import RobotModel, state_scale_to_si
+from hostsim.model import fastdyn
+from hostsim.model.equations import RobotModel, state_scale_to_si
 
 DEFAULT_DT_S = 1e-3
 METHODS = ("rk4", "heun")

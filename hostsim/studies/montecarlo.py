@@ -12,24 +12,26 @@ draws, from its own generator seeded by (seed, run index):
 - gyro bias U(-2, 2) deg/s and white noise of standard deviation U(0, 0.5) deg/s: within
   the firmware's calibration stillness check (rate spread <= 4 deg/s over 1 s), which a
   larger noise would trip; a run the firmware refuses to start is counted apart;
-- encoder quantization (always: 1 count = 1 degree, hostsim.sensors), one extra tick of
+- encoder quantization (always: 1 count = 1 degree, hostsim.world.sensors), one extra tick of
   input delay with probability 1/2, and loop wake-up jitter |N(0, s)|, s ~ U(0, 1) ms;
 - the release angle th1(0) ~ U(-0.04, 0.04) rad.
 
 The same draws are used for every gains file (common random numbers: the gains are
 compared on identical robots). A run succeeds when the firmware completes the duration
 (no fall or joint-limit stop), |th1| stays below 30 degrees and ends below 0.1 rad.
-Results do not depend on --jobs (see hostsim.parallel).
+Results do not depend on --jobs (see hostsim.sim.parallel).
 """
 import argparse
+import dataclasses
 import json
 import os
-import sys
 import time
 
 import numpy as np
 
-from hostsim.params import MOTOR_ROLES, REPO_ROOT
+from hostsim.model.params import MOTOR_ROLES
+from hostsim.paths import REPO_ROOT, out_dir
+from hostsim.studies.stats import distribution, trio
 
 GEOMETRY = ("m1_kg", "m2_kg", "m3_kg", "mw_kg", "l1_m", "l2_m", "l3_m", "rw_m", "track_m",
             "j1_kg_m2", "j2_kg_m2", "j3_kg_m2", "jw_kg_m2") + tuple(r + "_jm_kg_m2" for r in MOTOR_ROLES)
@@ -61,19 +63,14 @@ def draw(rng):
 
 
 def scenario_for(base, d, duration_s=None):
-    sc = dict(base)
-    sc["param_scale"] = d["param_scale"]
-    sensors = dict(base["sensors"])
-    sensors.update(gyro_bias_dps=d["gyro_bias_dps"], gyro_noise_dps=d["gyro_noise_dps"])
-    sc["sensors"] = sensors
-    sc["extra_delay_ticks"] = d["extra_delay_ticks"]
-    sc["jitter_s"] = d["jitter_s"]
-    sc["seed"] = d["seed"]
-    x0 = list(base["x0_si"])
+    x0 = list(base.x0_si)
     x0[2] = d["th1_0_rad"]
-    sc["x0_si"] = x0
+    sc = dataclasses.replace(
+        base, param_scale=d["param_scale"], extra_delay_ticks=d["extra_delay_ticks"], jitter_s=d["jitter_s"],
+        seed=d["seed"], x0_si=tuple(x0),
+        sensors=dataclasses.replace(base.sensors, gyro_bias_dps=d["gyro_bias_dps"], gyro_noise_dps=d["gyro_noise_dps"]))
     if duration_s is not None:
-        sc["duration_s"] = float(duration_s)
+        sc = dataclasses.replace(sc, duration_s=float(duration_s))
     return sc
 
 
@@ -94,8 +91,8 @@ def gains_document(path, zero_kw):
 
 def run_one(task):
     """Worker: one Monte Carlo run -> a JSON-ready row."""
-    from hostsim.fil import run_firmware
-    from hostsim.metrics import UPRIGHT_LIMIT_RAD
+    from hostsim.sim.fil import run_firmware
+    from hostsim.sim.metrics import UPRIGHT_LIMIT_RAD
 
     label, gains_path, zero_kw, base, index, seed, duration_s = task
     d = draw(np.random.default_rng([seed, index]))
@@ -103,14 +100,14 @@ def run_one(task):
     t0 = time.perf_counter()
     run = run_firmware(sc, gains_doc=gains_document(gains_path, zero_kw), sysfs=False, keep_rows=False)
     wall = time.perf_counter() - t0
-    x, u = run["x"], run["u"]
+    x, u = run.x, run.u
     th1 = np.abs(x[:, 2])
-    completed = bool(run["completed"])
+    completed = bool(run.completed)
     success = completed and bool(np.all(th1 < UPRIGHT_LIMIT_RAD)) and float(th1[-1]) < FINAL_TH1_RAD
     return {
-        "gains": label, "index": index, "success": success, "exit_code": run["exit_code"],
-        "stop_reason": run["stop_reason"], "refused": run["stop_reason"] == "calibration",
-        "simulated_s": float(run["t_s"][-1]), "wall_s": wall,
+        "gains": label, "index": index, "success": success, "exit_code": run.exit_code,
+        "stop_reason": run.stop_reason, "refused": run.stop_reason == "calibration",
+        "simulated_s": float(run.t_s[-1]), "wall_s": wall,
         "peak_abs_th1_rad": float(th1.max()), "peak_abs_th2_rad": float(np.abs(x[:, 3]).max()),
         "peak_abs_th3_rad": float(np.abs(x[:, 4]).max()), "final_abs_th1_rad": float(th1[-1]),
         "peak_abs_u_v": float(np.abs(u[:, [0, 1, 3, 4]]).max()),
@@ -133,8 +130,8 @@ def variants(gains_paths, kw0, only_kw0=False):
 
 def warm_models(plant_variants=("physical",)):
     """Generate the model code cache once, before the workers would race to."""
-    from hostsim.model import RobotModel
-    from hostsim.params import load_params
+    from hostsim.model.equations import RobotModel
+    from hostsim.model.params import load_params
     for v in plant_variants:
         RobotModel(v, load_params())
 
@@ -142,29 +139,25 @@ def warm_models(plant_variants=("physical",)):
 def run_montecarlo(runs=200, duration_s=None, gains_paths=DEFAULT_GAINS, kw0=False, jobs=None, seed=0,
                    base=None, desc="Monte Carlo", only_kw0=False):
     """-> {label: {"runs": [rows], "summary": {...}}, "_meta": {...}}."""
-    from hostsim.parallel import default_jobs, run_tasks
-    from hostsim.scenario import load_scenario
+    from hostsim.sim.parallel import default_jobs, run_tasks
+    from hostsim.sim.scenario import load_scenario
 
     base = base or load_scenario(BASE_SCENARIO)
     tasks = [(label, path, zk, base, i, seed, duration_s)
              for label, path, zk in variants(gains_paths, kw0, only_kw0) for i in range(runs)]
     jobs = default_jobs() if jobs is None else jobs
     t0 = time.perf_counter()
-    rows = run_tasks(run_one, tasks, jobs=jobs, desc=desc, warm=lambda: warm_models((base["plant_variant"],)))
+    rows = run_tasks(run_one, tasks, jobs=jobs, desc=desc, warm=lambda: warm_models((base.plant_variant,)))
     wall = time.perf_counter() - t0
     out = {}
     for label, _, _ in variants(gains_paths, kw0, only_kw0):
         mine = [r for r in rows if r["gains"] == label]
         out[label] = {"runs": mine, "summary": summarize(mine)}
-    out["_meta"] = {"runs_per_gains": runs, "duration_s": duration_s or base["duration_s"], "jobs": jobs,
+    out["_meta"] = {"runs_per_gains": runs, "duration_s": duration_s or base.duration_s, "jobs": jobs,
                     "seed": seed, "wall_s": wall, "total_runs": len(tasks),
                     "runs_per_s": len(tasks) / wall if wall > 0 else None,
-                    "plant_variant": base["plant_variant"], "plant_method": base["plant_method"]}
+                    "plant_variant": base.plant_variant, "plant_method": base.plant_method}
     return out
-
-
-def _pct(values, q):
-    return float(np.percentile(values, q)) if len(values) else None
 
 
 def summarize(rows):
@@ -185,15 +178,10 @@ def summarize(rows):
         "runs": n, "successes": len(ok), "success_rate": len(ok) / n if n else None,
         "refused": n - len(started), "failures_by_reason": reasons,
         "success_rate_by_extra_delay": by_delay,
-        "peak_abs_th1_rad": {"median": _pct(tilt, 50), "p95": _pct(tilt, 95), "max": max(tilt) if tilt else None},
-        "peak_abs_u_v": {"median": _pct(volt, 50), "p95": _pct(volt, 95), "max": max(volt) if volt else None},
+        "peak_abs_th1_rad": distribution(tilt),
+        "peak_abs_u_v": distribution(volt),
         "mean_wall_s": float(np.mean([r["wall_s"] for r in rows])) if rows else None,
     }
-
-
-def trio(d, fmt, sep="/"):
-    """'median/p95/max' of a distribution summary ('-' where there were no runs)."""
-    return sep.join("-" if d[k] is None else fmt % d[k] for k in ("median", "p95", "max"))
 
 
 def format_table(results):
@@ -216,7 +204,7 @@ def format_table(results):
 
 
 def write(results, out_dir):
-    from hostsim import plots
+    from hostsim.studies import plots
     os.makedirs(out_dir, exist_ok=True)
     with open(os.path.join(out_dir, "montecarlo.json"), "w") as f:
         json.dump(results, f, indent=1, sort_keys=True)
@@ -228,11 +216,11 @@ def main(argv=None):
     ap = argparse.ArgumentParser(prog="python -m hostsim montecarlo", description=__doc__.split("\n\n")[0])
     ap.add_argument("--runs", type=int, default=200, help="runs per gains file (default 200)")
     ap.add_argument("--duration", type=float, default=None, help="seconds per run (default: the base scenario's, 10)")
-    ap.add_argument("--gains", nargs="+", default=list(DEFAULT_GAINS))
+    ap.add_argument("--gains", nargs="+", default=list(DEFAULT_GAINS), help="gains files (default gains/paper.json gains/physical.json)")
     ap.add_argument("--kw0", action="store_true", help="also run each gains file with K_w = 0 (diagnosis)")
     ap.add_argument("--jobs", type=int, default=None, help="worker processes (default: all cores)")
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--out", default=os.path.join(REPO_ROOT, "out", "montecarlo"))
+    ap.add_argument("--seed", type=int, default=0, help="seed of the draws (default 0)")
+    ap.add_argument("--out", default=out_dir("montecarlo"), help="output directory (default out/montecarlo)")
     args = ap.parse_args(argv)
     if args.runs < 1:
         ap.error("--runs must be at least 1")
@@ -242,6 +230,3 @@ def main(argv=None):
     print("wrote %s and %s" % (os.path.join(args.out, "montecarlo.json"), os.path.join(args.out, fig)))
     return 0
 
-
-if __name__ == "__main__":
-    sys.exit(main())

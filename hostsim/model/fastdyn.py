@@ -1,6 +1,6 @@
 """A faster state derivative, compiled from the model's own generated code, same numbers.
 
-hostsim.model generates ``mass_matrix_forcing(q, qd, u, p)`` (flat M and F) and hostsim.plant
+hostsim.model.equations generates ``mass_matrix_forcing(q, qd, u, p)`` (flat M and F) and hostsim.world.plant
 solves ``M q'' = F`` with a pure-Python Cholesky (``solve_spd5``). The simulator evaluates
 that four times per millisecond, so it dominates every firmware-in-the-loop run. This
 module rewrites the generated function (with ``ast``, no sympy) into
@@ -178,7 +178,7 @@ def compile_model(model):
             source = compile_source(f.read())
         namespace = {"_not_spd": _not_spd}
         namespace.update({k: getattr(math, k) for k in dir(math) if not k.startswith("_")})
-        exec(compile(source, "<hostsim.fastdyn %s>" % path, "exec"), namespace)
+        exec(compile(source, "<hostsim.model.fastdyn %s>" % path, "exec"), namespace)
         fns = _CACHE[path] = (namespace["prepare"], namespace["deriv"])
     prepare, deriv = fns
     return deriv, prepare(model._pl)

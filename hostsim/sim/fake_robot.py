@@ -1,17 +1,17 @@
 """A real-time fake EV3: the simulated robot behind a fake sysfs tree, on the wall clock.
 
-    python -m hostsim.fake_robot --root DIR [--scenario FILE|NAME] [--duration S]
+    python -m hostsim fake-robot --root DIR [--scenario FILE|NAME] [--duration S]
                                  [--write-config FILE] [--trace FILE.npz]
 
-creates a hostsim.fake_ev3 tree in DIR and keeps it in step with the nonlinear plant
-(hostsim.plant, the scenario's plant variant and parameter scales) and the sensor models
-(hostsim.sensors) in real time, so that the unmodified firmware can run against it as a
+creates a hostsim.world.fake_ev3 tree in DIR and keeps it in step with the nonlinear plant
+(hostsim.world.plant, the scenario's plant variant and parameter scales) and the sensor models
+(hostsim.world.sensors) in real time, so that the unmodified firmware can run against it as a
 SEPARATE process, exactly as on the brick:
 
     python3 -m tipbot_fw run --gains gains/physical.json --config CFG --sysfs-root DIR
 
 (or the deployed launcher over ssh: tests/test_deploy.py). The files on disk are the only
-link between the two processes. This is the real-time counterpart of hostsim.fil, which runs
+link between the two processes. This is the real-time counterpart of hostsim.sim.fil, which runs
 the firmware in lock-step with a virtual clock in one process.
 
 Every ~1 ms (--step-ms) the loop reads what the firmware wrote (FakeEV3.poll), integrates
@@ -30,15 +30,15 @@ floor, where a still gyro and still wheels would look like a robot in balance.
 
 The gyro: from the fake's start it counts the angle of its first mode, with the scenario's
 bias, until the firmware switches it to GYRO-G&A; the first samples after the switch are
-still the old mode's (hostsim.fake_ev3.GYRO_MODE_SWITCH_S), as on the real sensor.
+still the old mode's (hostsim.world.fake_ev3.GYRO_MODE_SWITCH_S), as on the real sensor.
 
 The firmware must be told the start pose, gyro mounting and wheel radius: --write-config
-FILE writes the matching firmware configuration (hostsim.fil.firmware_config; realtime
+FILE writes the matching firmware configuration (hostsim.sim.fil.firmware_config; realtime
 priority 0), for `--config` or for `make deploy CONFIG=FILE`.
 
 Prints "fake_robot: ready ..." once the tree exists, a summary when it stops (after
 --duration seconds, or on SIGTERM / SIGINT). Not for accuracy studies: the host's scheduling
-makes runs unrepeatable; use hostsim.fil for that.
+makes runs unrepeatable; use hostsim.sim.fil for that.
 """
 import argparse
 import json
@@ -50,14 +50,15 @@ import time
 import numpy as np
 
 from hostsim.errors import TipbotError
-from hostsim.fake_ev3 import DEFAULT_MOTOR_PORTS, FakeEV3, FakeEV3Error
-from hostsim.fil import MODEL_INPUT, ROLES, firmware_config, scaled_params
-from hostsim.model import RobotModel, state_scale_to_si
-from hostsim.params import load_params
-from hostsim.plant import Plant
-from hostsim.scenario import disturbance_at, load_scenario, parse_scenario
-from hostsim.sensors import SensorModel
-from tipbot_fw.config import ConfigError
+from hostsim.world.fake_ev3 import DEFAULT_MOTOR_PORTS, FakeEV3, FakeEV3Error
+from hostsim.sim.fil import firmware_config
+from hostsim.model.equations import RobotModel, state_scale_to_si
+from hostsim.model.params import load_params, scaled_params
+from hostsim.world.plant import Plant
+from hostsim.sim.scenario import disturbance_at, load_scenario, parse_scenario
+from hostsim.world.sensors import SensorModel
+from tipbot_fw.config import MOTOR_ROLES, ConfigError
+from tipbot_fw.gains import ACTUATED_INPUTS
 
 DEFAULT_STEP_S = 0.001
 # The firmware's start-up to the end of its gyro calibration is about 1.1 s
@@ -73,19 +74,19 @@ class RealTimeRobot:
     def __init__(self, sc, root, params=None, hold_s=DEFAULT_HOLD_S, say=None):
         self.sc = sc
         nominal = load_params() if params is None else params
-        p = scaled_params(sc["param_scale"], nominal)
-        self.model = RobotModel(sc["plant_variant"], p)
+        p = scaled_params(sc.param_scale, nominal)
+        self.model = RobotModel(sc.plant_variant, p)
         to_model = 1.0 / np.diag(state_scale_to_si(self.model.variant))
-        self.plant = Plant(self.model, np.array(sc["x0_si"]) * to_model, dt_s=PLANT_DT_S)
+        self.plant = Plant(self.model, np.array(sc.x0_si) * to_model, dt_s=PLANT_DT_S)
         self.config = firmware_config(sc, nominal["rw_m"])
-        s = sc["sensors"]
-        self.battery_v = s["battery_v"]
-        self.rng = np.random.default_rng(sc["seed"])
-        signs = tuple(self.config["polarity"][r] for r in ROLES)
-        self.sensors = SensorModel(p["rw_m"], motor_signs=signs, gyro_sign=int(s["gyro_sign"]),
-                                   gyro_bias_dps=s["gyro_bias_dps"], gyro_noise_dps=s["gyro_noise_dps"],
+        s = sc.sensors
+        self.battery_v = s.battery_v
+        self.rng = np.random.default_rng(sc.seed)
+        signs = tuple(self.config["polarity"][r] for r in MOTOR_ROLES)
+        self.sensors = SensorModel(p["rw_m"], motor_signs=signs, gyro_sign=int(s.gyro_sign),
+                                   gyro_bias_dps=s.gyro_bias_dps, gyro_noise_dps=s.gyro_noise_dps,
                                    rng=self.rng, battery_v=self.battery_v)
-        self.ports = tuple(self.config["ports"][r] for r in ROLES)
+        self.ports = tuple(self.config["ports"][r] for r in MOTOR_ROLES)
         if self.ports != DEFAULT_MOTOR_PORTS:
             raise ValueError("the fake EV3 has its motors on %s" % (DEFAULT_MOTOR_PORTS,))
         self.fake = FakeEV3(root_dir=root, battery_v=self.battery_v)
@@ -109,7 +110,7 @@ class RealTimeRobot:
     def _pick_up(self):
         """The owner puts the robot back at the start pose and holds it there."""
         self.plant.x = self.x0.copy()
-        self.pushes = sorted((q["t_s"], q["th1_dot_rad_s"]) for q in self.sc["pushes"])
+        self.pushes = sorted((q.t_s, q.th1_dot_rad_s) for q in self.sc.pushes)
         self.fallen = False
         self.t_release_s = None
 
@@ -163,7 +164,7 @@ class RealTimeRobot:
         signs = self.sensors.motor_signs
         v = np.zeros(5)
         for i, d in enumerate(duties):
-            v[MODEL_INPUT[i]] = signs[i] * d / 100.0 * self.battery_v
+            v[ACTUATED_INPUTS[i]] = signs[i] * d / 100.0 * self.battery_v
         self.volts = v
         self.t_s = t_s
         self._publish()
@@ -201,7 +202,7 @@ def run_realtime(robot, duration_s=None, step_s=DEFAULT_STEP_S, stop=lambda: Fal
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(prog="python -m hostsim.fake_robot",
+    ap = argparse.ArgumentParser(prog="python -m hostsim fake-robot",
                                  description=__doc__.split("\n\n")[0],
                                  epilog=__doc__.split("\n\n", 1)[1],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -234,7 +235,7 @@ def main(argv=None):
         if a.write_config:
             with open(a.write_config, "w") as f:
                 json.dump(robot.config, f, indent=1, sort_keys=True)
-        print("fake_robot: ready, sysfs root %s (scenario %s)" % (robot.fake.sysfs_root, sc["name"]), flush=True)
+        print("fake_robot: ready, sysfs root %s (scenario %s)" % (robot.fake.sysfs_root, sc.name), flush=True)
         stats = run_realtime(robot, a.duration, a.step_ms * 1e-3, stop=lambda: bool(stopping))
     finally:
         robot.close()
@@ -247,6 +248,3 @@ def main(argv=None):
         print("fake_robot: client errors: %s" % "; ".join(robot.fake.errors[:5]), flush=True)
     return 0
 
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -1,6 +1,6 @@
 """Gain generation: model -> linearization -> discretization -> LQR + detector -> JSON.
 
-``python -m hostsim.gains [--variant paper|physical|all] [--ts 0.005] [--params FILE]
+``python -m hostsim gains [--variant paper|physical|all] [--ts 0.005] [--params FILE]
 [--out-dir gains] [--check]`` writes ``gains/<variant>.json`` (schema in
 docs/architecture.md). Another period or another parameters file goes to a file of its own,
 named by what differs (``physical-ts0.010.json``, ``physical-identified.json``): the
@@ -14,21 +14,26 @@ time, floats rounded to 12 significant digits. ``--check`` compares instead of w
 exits 1 on a difference.
 """
 import argparse
+import dataclasses
 import json
 import os
 import re
 import sys
 
+from typing import Optional
+
 import numpy as np
 
-from hostsim import design
 from hostsim.errors import TipbotError
-from hostsim.model import ACTUATED_INPUTS, INPUT_NAMES, STATE_NAMES, RobotModel, get_variant, state_scale_to_si
-from hostsim.params import DEFAULT_PARAMS_PATH, REPO_ROOT, load_params, params_hash
+from hostsim.model import design
+from hostsim.model.equations import INPUT_NAMES, STATE_NAMES, RobotModel, Variant, get_variant, state_scale_to_si
+from hostsim.model.params import DEFAULT_PARAMS_PATH, load_params, params_hash
+from hostsim.paths import GAINS_DIR
+from tipbot_fw.gains import ACTUATED_INPUTS
 
 SCHEMA_VERSION = 1
 DEFAULT_TS_S = 0.005
-DEFAULT_OUT_DIR = os.path.join(REPO_ROOT, "gains")
+DEFAULT_OUT_DIR = GAINS_DIR
 VARIANT_NAMES = ("paper", "physical")
 
 # How far a regenerated number may move from the committed one, relative to the norm of its
@@ -57,8 +62,35 @@ NUMERIC_FIELDS = {
 ROBUST_AGAINST = ("paper",)
 
 
+@dataclasses.dataclass(frozen=True)
+class GainDesign:
+    """Everything designed for one model variant (arrays in the variant's units, d in cm for
+    ``paper``); to_document() makes the gains file of it."""
+    variant: Variant
+    model: RobotModel
+    ts_s: float
+    A: np.ndarray
+    B: np.ndarray
+    C: np.ndarray
+    E: np.ndarray
+    Q: np.ndarray
+    R: np.ndarray
+    r_wheel_scale: float             # the wheel inputs' weight multiplier (physical variant)
+    robust_to_models: Optional[bool]  # whether K also stabilizes ROBUST_AGAINST (None: not checked)
+    robust_worst_radius: Optional[float]
+    K: np.ndarray
+    P: np.ndarray                    # the Riccati solution
+    K_w: np.ndarray
+    L1: np.ndarray
+    L2: np.ndarray
+    G_w: np.ndarray
+    closed_loop_eigenvalues: np.ndarray
+    detector_eigenvalues: np.ndarray
+    structure: dict                  # design.structure_report
+
+
 def design_gains(variant, params, ts_s=DEFAULT_TS_S, detector_poles=None):
-    """Design everything the firmware needs for one model variant; returns a dict of arrays."""
+    """Design everything the firmware needs for one model variant -> GainDesign."""
     if isinstance(variant, str):
         variant = get_variant(variant)
     model = RobotModel(variant, params)
@@ -79,7 +111,7 @@ def design_gains(variant, params, ts_s=DEFAULT_TS_S, detector_poles=None):
             a, b, q, r, ACTUATED_INPUTS, check_models, state_scale_to_si(variant))
     k_w = design.disturbance_gain(a, b, q, r, k, p, e_mat)
     l1, l2, g_w, det_eig = design.robust_detector(a, b, c, e_mat, ACTUATED_INPUTS, detector_poles)
-    return dict(variant=variant, model=model, ts_s=float(ts_s), A=a, B=b, C=c, E=e_mat, Q=q, R=r,
+    return GainDesign(variant=variant, model=model, ts_s=float(ts_s), A=a, B=b, C=c, E=e_mat, Q=q, R=r,
                 r_wheel_scale=r_wheel_scale, robust_to_models=robust, robust_worst_radius=worst,
                 K=k, P=p, K_w=k_w, L1=l1, L2=l2, G_w=g_w,
                 closed_loop_eigenvalues=cl_eig, detector_eigenvalues=det_eig,
@@ -105,25 +137,25 @@ def _generator():
 
 def to_document(g):
     """The JSON document of a design (plain Python types, rounded floats)."""
-    variant, params = g["variant"], g["model"].params
-    st = g["structure"]
+    variant, params = g.variant, g.model.params
+    st = g.structure
     doc = {
         "schema_version": SCHEMA_VERSION,
         "model_variant": variant.name,
         "model_options": variant.options(),
-        "ts_s": _num(g["ts_s"]),
+        "ts_s": _num(g.ts_s),
         "state_names": list(STATE_NAMES),
         "state_units": list(variant.state_units),
         "input_names": list(INPUT_NAMES),
         "input_units": ["V"] * len(INPUT_NAMES),
         "actuated_inputs": list(ACTUATED_INPUTS),
         "u_max_v": _num(params["u_max_v"]),
-        "r_wheel_scale": _num(g["r_wheel_scale"]),
-        "robust_to_models": None if g["robust_to_models"] is None else {
-            "models": list(ROBUST_AGAINST), "stabilized": g["robust_to_models"],
-            "worst_spectral_radius": _num(g["robust_worst_radius"])},
-        "closed_loop_spectral_radius": _num(np.max(np.abs(g["closed_loop_eigenvalues"]))),
-        "detector_eigenvalues": [_num(z.real) for z in sorted(g["detector_eigenvalues"], key=lambda z: z.real)],
+        "r_wheel_scale": _num(g.r_wheel_scale),
+        "robust_to_models": None if g.robust_to_models is None else {
+            "models": list(ROBUST_AGAINST), "stabilized": g.robust_to_models,
+            "worst_spectral_radius": _num(g.robust_worst_radius)},
+        "closed_loop_spectral_radius": _num(np.max(np.abs(g.closed_loop_eigenvalues))),
+        "detector_eigenvalues": [_num(z.real) for z in sorted(g.detector_eigenvalues, key=lambda z: z.real)],
         "controllability_rank": st["controllability_rank"],
         "observability_rank": st["observability_rank"],
         "open_loop_eigenvalues_abs": [_num(abs(z)) for z in st["open_loop_eigenvalues"]],
@@ -132,7 +164,7 @@ def to_document(g):
         "generator": _generator(),
     }
     for key in ("A", "B", "C", "E", "K", "K_w", "L1", "L2", "G_w", "Q", "R"):
-        doc[key] = _matrix(g[key])
+        doc[key] = _matrix(getattr(g, key))
     return doc
 
 
@@ -150,25 +182,25 @@ def dumps(doc):
 
 
 def summary(g):
-    st = g["structure"]
+    st = g.structure
     ol = ", ".join("%.4g" % abs(z) for z in st["open_loop_eigenvalues"])
     return "\n".join([
-        "variant %s: ts %.4g s, state units %s" % (g["variant"].name, g["ts_s"], "/".join(sorted(set(g["variant"].state_units)))),
+        "variant %s: ts %.4g s, state units %s" % (g.variant.name, g.ts_s, "/".join(sorted(set(g.variant.state_units)))),
         "  controllability rank %d, observability rank %d (of 10)" % (st["controllability_rank"], st["observability_rank"]),
         "  open-loop |eig|: %s" % ol,
-        "  closed-loop spectral radius of A - B K: %.6f" % np.max(np.abs(g["closed_loop_eigenvalues"])),
-        "  detector eigenvalues (Abar - L1 C): %s" % ", ".join("%.4g" % z.real for z in g["detector_eigenvalues"]),
+        "  closed-loop spectral radius of A - B K: %.6f" % np.max(np.abs(g.closed_loop_eigenvalues)),
+        "  detector eigenvalues (Abar - L1 C): %s" % ", ".join("%.4g" % z.real for z in g.detector_eigenvalues),
     ] + robustness_lines(g))
 
 
 def robustness_lines(g):
-    if g["robust_to_models"] is None:
+    if g.robust_to_models is None:
         return []
-    if g["robust_to_models"]:
+    if g.robust_to_models:
         return ["  wheel input weight x%g: the gain also stabilizes the %s model(s) (worst radius %.5f)"
-                % (g["r_wheel_scale"], "/".join(ROBUST_AGAINST), g["robust_worst_radius"])]
+                % (g.r_wheel_scale, "/".join(ROBUST_AGAINST), g.robust_worst_radius)]
     return ["  WARNING: no wheel input weight makes this gain stabilize the %s model(s) at ts %.4g s "
-            "(worst radius %.4f); using the paper's weights" % ("/".join(ROBUST_AGAINST), g["ts_s"], g["robust_worst_radius"])]
+            "(worst radius %.4f); using the paper's weights" % ("/".join(ROBUST_AGAINST), g.ts_s, g.robust_worst_radius)]
 
 
 def output_name(variant, ts_s=DEFAULT_TS_S, params_path=DEFAULT_PARAMS_PATH):
@@ -292,8 +324,9 @@ def agreement_text(agreement):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(prog="python -m hostsim.gains", description=__doc__.split("\n\n")[0])
-    ap.add_argument("--variant", choices=VARIANT_NAMES + ("all",), default="all")
+    ap = argparse.ArgumentParser(prog="python -m hostsim gains", description=__doc__.split("\n\n")[0])
+    ap.add_argument("--variant", choices=VARIANT_NAMES + ("all",), default="all",
+                    help="model variant to design (default all)")
     ap.add_argument("--ts", type=float, default=DEFAULT_TS_S,
                     help="loop period in seconds (default 0.005; another goes to <variant>-ts<TS>.json)")
     ap.add_argument("--params", default=DEFAULT_PARAMS_PATH,
@@ -336,6 +369,3 @@ def main(argv=None):
         print("error: %s" % exc, file=sys.stderr)
         return 2
 
-
-if __name__ == "__main__":
-    sys.exit(main())

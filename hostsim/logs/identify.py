@@ -57,7 +57,7 @@ Output: per log the fit and the parameters beside Table 2's motor for that role 
 against time, one panel per log, as in Figure 3 (--out, default out/identify/); with
 ``--write-params OUT.json`` a copy of the parameters file (--params) with the identified
 roles' five motor fields replaced (sources say from which log and when), which
-``python -m hostsim.gains --params OUT.json`` accepts. Several logs of one role are
+``python -m hostsim gains --params OUT.json`` accepts. Several logs of one role are
 averaged (phi, alpha, tau_c), then the parameters derived.
 
 Logs that cannot give a fit are refused with an IdentifyError naming the log and the
@@ -65,27 +65,27 @@ problem (exit status 2): not an identify log, a run that stopped early, too few 
 stalled motor, a motor that never reached a steady speed, no usable run-down.
 """
 import argparse
+import dataclasses
 import datetime
 import json
 import math
 import os
 import sys
+from typing import Optional
 
 import numpy as np
 from scipy.optimize import least_squares
 from scipy.signal import lfilter
 
 from hostsim.errors import TipbotError
-from hostsim.motor_sim import TABLE2, TABLE2_G
-from hostsim.params import DEFAULT_PARAMS_PATH, MOTOR_FIELDS, MOTOR_ROLES, REPO_ROOT, load_params, parse_params
+from hostsim.logs import read_log
+from hostsim.model.motors import DRIVER_MOTOR, ROLE_MOTOR, TABLE2, TABLE2_G
+from hostsim.model.params import DEFAULT_PARAMS_PATH, MOTOR_FIELDS, MOTOR_ROLES, load_params, parse_params
+from hostsim.paths import out_dir
 from tipbot_fw import identify as fw_identify
-from tipbot_fw import logfile
 
-DEFAULT_OUT = os.path.join(REPO_ROOT, "out", "identify")
+DEFAULT_OUT = out_dir("identify")
 DEG = math.pi / 180.0
-#: Table 2 motor of each role (shared/paper/README.md).
-ROLE_MOTOR = {"right_wheel": 1, "left_wheel": 2, "joint2": 3, "joint3": 5}
-DRIVER_MOTOR = {"lego-ev3-l-motor": 1, "lego-ev3-m-motor": 5}
 
 # Limits of a usable log.
 MIN_DRIVE_ROWS = 20          # rows in the drive phase
@@ -158,16 +158,10 @@ class IdLog:
 
 def load_log(path):
     """-> IdLog; IdentifyError (NotAnIdentifyLog) naming the problem."""
-    if not os.path.isfile(path):
-        raise IdentifyError("%s: no such log file" % path)
-    try:
-        header, rows = logfile.read_log(path)
-    except logfile.LogFormatError as e:
-        raise IdentifyError(str(e))
+    header, rows, names = read_log(path, IdentifyError)
     if header.get("kind") != fw_identify.KIND:
         raise NotAnIdentifyLog("%s: not an identify log (header kind %r; a balance run log has none): record one with "
                                "`python3 -m tipbot_fw identify --port PORT` on the brick" % (path, header.get("kind")))
-    names = [c.get("name") if isinstance(c, dict) else c for c in header.get("columns", [])]
     missing = [n for n in fw_identify.COLUMN_NAMES if n not in names]
     if missing:
         raise NotAnIdentifyLog("%s: identify log without the column(s) %s" % (path, ", ".join(missing)))
@@ -461,8 +455,9 @@ def describe_fit(f):
     return "\n".join(lines)
 
 
-def table(role, motor, fits, p, ra_source, load_j):
-    """Identified values beside Table 2's motor."""
+def table(group, load_j):
+    """An IdentifiedGroup's values beside Table 2's motor."""
+    role, motor, fits, p, ra_source = group.role, group.table2_motor, group.fits, group.params, group.ra_source
     t2 = TABLE2[motor]
     g_phi, g_alpha = TABLE2_G[motor]
     phi = np.array([f["step"]["phi"] for f in fits])
@@ -578,7 +573,7 @@ def measured_speed(log, window_s=0.02):
 def write_params(base_path, out_path, derived, sources):
     """A copy of the parameters file at base_path with the roles' motor fields replaced.
     derived: {role: parameter dict}; sources: {role: text}. The top-level object
-    ``identified`` keeps, per role, what the fit measured (hostsim.params ignores it).
+    ``identified`` keeps, per role, what the fit measured (hostsim.model.params ignores it).
     Validated before it is written; out_path may be base_path."""
     with open(base_path) as f:
         doc = json.load(f)
@@ -611,9 +606,19 @@ FIELD_HOW = {
 
 
 # ------------------------------------------------------------------------------ command line
+@dataclasses.dataclass(frozen=True)
+class IdentifiedGroup:
+    """The logs of one role (or one unnamed log) and the parameters derived from their mean fit."""
+    role: Optional[str]          # None: the log named no role and none was given
+    table2_motor: int            # the paper's motor to compare with
+    fits: list                   # fit_log() of each log
+    params: dict                 # derive() + phi, alpha, tau_c, ra_source, load_inertia_kg_m2
+    ra_source: str               # where Ra came from
+
+
 def identify(paths, roles=(), ra_ohm=None, jm_kg_m2=None, load_inertia_kg_m2=0.0, params_path=DEFAULT_PARAMS_PATH,
              dead_time=True):
-    """Fit every log, group by role, derive. -> (fits, groups: [(role, motor, fits, params, ra_source)])."""
+    """Fit every log, group by role, derive. -> (fits, [IdentifiedGroup])."""
     if roles and len(roles) not in (1, len(paths)):
         raise IdentifyError("--role given %d times for %d logs: give it once (all logs) or once per log"
                             % (len(roles), len(paths)))
@@ -648,22 +653,23 @@ def identify(paths, roles=(), ra_ohm=None, jm_kg_m2=None, load_inertia_kg_m2=0.0
         tau = float(np.mean([f["rundown"]["tau_c"] for f in members]))
         p = derive(phi, alpha, tau, ra, jm_kg_m2, load_inertia_kg_m2)
         p.update(ra_source=ra_source, load_inertia_kg_m2=load_inertia_kg_m2, phi=phi, alpha=alpha, tau_c=tau)
-        groups.append((role, table2_motor(members[0]["log"], role), members, p, ra_source))
+        groups.append(IdentifiedGroup(role, table2_motor(members[0]["log"], role), members, p, ra_source))
     return fits, groups
 
 
 def summary_json(groups):
     out = {}
-    for role, motor, members, p, ra_source in groups:
-        out[role or members[0]["log"].path] = {
+    for g in groups:
+        members, p = g.fits, g.params
+        out[g.role or members[0]["log"].path] = {
             "logs": [f["log"].path for f in members],
-            "table2_motor": motor,
+            "table2_motor": g.table2_motor,
             "fits": [{"phi": f["step"]["phi"], "alpha": f["step"]["alpha"], "dead_time_s": f["step"]["dead_time_s"],
                       "tau_c": f["rundown"]["tau_c"], "step_rms_counts": f["step"]["rms_counts"],
                       "rundown_rms_counts": f["rundown"]["rms_counts"],
                       "coulomb_dominated": f["rundown"]["coulomb_dominated"]} for f in members],
             "parameters": {k: p[k] for k in MOTOR_FIELDS},
-            "assumption": p["assumption"], "ra_source": ra_source, "friction_share": p["friction_share"],
+            "assumption": p["assumption"], "ra_source": g.ra_source, "friction_share": p["friction_share"],
         }
     return out
 
@@ -684,7 +690,7 @@ def main(argv=None):
     ap.add_argument("--params", default=DEFAULT_PARAMS_PATH, help="parameters file (Ra, and the base of --write-params)")
     ap.add_argument("--write-params", metavar="OUT.json", help="write --params with the identified roles replaced")
     ap.add_argument("--out", metavar="DIR", default=DEFAULT_OUT, help="plot and summary directory (default out/identify)")
-    ap.add_argument("--no-plots", action="store_true")
+    ap.add_argument("--no-plots", action="store_true", help="print the fits only (no PNG, no identify.json)")
     a = ap.parse_args(argv)
     for name in ("ra_ohm", "jm_kg_m2"):
         v = getattr(a, name)
@@ -698,23 +704,23 @@ def main(argv=None):
         for f in fits:
             print(describe_fit(f))
         print()
-        for role, motor, members, p, ra_source in groups:
-            print(table(role, motor, members, p, ra_source, a.load_inertia_kg_m2))
-            phi_m, alpha_m, _ = model_g(p)
+        for g in groups:
+            print(table(g, a.load_inertia_kg_m2))
+            phi_m, alpha_m, _ = model_g(g.params)
             print("  check: the derived parameters give phi %.5g, alpha %.5g (Section 4's formulas)" % (phi_m, alpha_m))
             print()
-        print(assumptions_text(groups[0][3], ["%s %s" % (g[0] or "motor", g[4]) for g in groups],
+        print(assumptions_text(groups[0].params, ["%s %s" % (g.role or "motor", g.ra_source) for g in groups],
                                a.load_inertia_kg_m2))
         if a.write_params:
-            unnamed = [g[2][0]["log"].path for g in groups if g[0] is None]
+            unnamed = [g.fits[0]["log"].path for g in groups if g.role is None]
             if unnamed:
                 raise IdentifyError("%s: no role for --write-params (the log has none): give --role" % unnamed[0])
             today = datetime.date.today().isoformat()
-            sources = {g[0]: "identified from %s on %s" % (", ".join(os.path.basename(f["log"].path) for f in g[2]),
-                                                            today) for g in groups}
-            write_params(a.params, a.write_params, {g[0]: g[3] for g in groups}, sources)
-            print("wrote %s (roles %s); next: python -m hostsim.gains --params %s"
-                  % (a.write_params, ", ".join(g[0] for g in groups), a.write_params))
+            sources = {g.role: "identified from %s on %s" % (", ".join(os.path.basename(f["log"].path) for f in g.fits),
+                                                              today) for g in groups}
+            write_params(a.params, a.write_params, {g.role: g.params for g in groups}, sources)
+            print("wrote %s (roles %s); next: python -m hostsim gains --params %s"
+                  % (a.write_params, ", ".join(g.role for g in groups), a.write_params))
         if not a.no_plots:
             os.makedirs(a.out, exist_ok=True)
             png = plot(fits, os.path.join(a.out, "identify.png"))
@@ -726,6 +732,3 @@ def main(argv=None):
         return 2
     return 0
 
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -1,15 +1,14 @@
 """Figures of merit of one simulated run (SI units; JSON-ready values).
 
-A run is the dict the simulators return (hostsim.linear_sim, hostsim.fil): t_s, x (10
-states), u (the controller's applied inputs, 5 volts), w (the disturbance), d_origin_m
-(where the controller's wheel origin lies in the scenario's frame), completed, and when
-available xhat, w_hat, u_unsat (the law's output before saturation).
+A run is the hostsim.sim.result.RunResult the simulators return (hostsim.sim.linear_sim,
+hostsim.sim.fil).
 """
 import math
 
 import numpy as np
 
-ACTUATED = (0, 1, 3, 4)
+from tipbot_fw.gains import ACTUATED_INPUTS
+
 UPRIGHT_LIMIT_RAD = math.radians(30)
 # After this transient, |th1| counts as the steady oscillation (paper, Section 9).
 TRANSIENT_S = 2.0
@@ -39,34 +38,34 @@ def settle_time(t, y, band):
 
 
 def disturbance_windows(sc, t_end):
-    return [(d["t_start_s"], min(t_end, d["t_end_s"] + AFTER_DISTURBANCE_S))
-            for d in sc["disturbances"] if d["t_start_s"] < t_end and any(d["w_v"])]
+    return [(d.t_start_s, min(t_end, d.t_end_s + AFTER_DISTURBANCE_S))
+            for d in sc.disturbances if d.t_start_s < t_end and any(d.w_v)]
 
 
 def compute(run, sc, u_max_v):
-    t, x, u = run["t_s"], run["x"], run["u"]
-    origin = np.zeros(2) + run.get("d_origin_m", 0.0)
+    t, x, u = run.t_s, run.x, run.u
+    origin = np.zeros(2) + run.d_origin_m
     th1 = x[:, 2]
-    sat = np.any(np.abs(u[:, ACTUATED]) >= u_max_v - 1e-6, axis=1)
+    sat = np.any(np.abs(u[:, ACTUATED_INPUTS]) >= u_max_v - 1e-6, axis=1)
     m = {
         "duration_s": _f(t[-1]),
-        "completed": bool(run.get("completed", True)),
-        "stop_reason": run.get("stop_reason"),
+        "completed": bool(run.completed),
+        "stop_reason": run.stop_reason,
         "peak_abs_th_rad": [_f(v) for v in np.max(np.abs(x[:, 2:5]), axis=0)],
         "state_min": [_f(v) for v in np.min(x, axis=0)],
         "state_max": [_f(v) for v in np.max(x, axis=0)],
-        "peak_abs_u_v": [_f(v) for v in np.max(np.abs(u[:, ACTUATED]), axis=0)],
-        "u_min_v": [_f(v) for v in np.min(u[:, ACTUATED], axis=0)],
-        "u_max_v": [_f(v) for v in np.max(u[:, ACTUATED], axis=0)],
+        "peak_abs_u_v": [_f(v) for v in np.max(np.abs(u[:, ACTUATED_INPUTS]), axis=0)],
+        "u_min_v": [_f(v) for v in np.min(u[:, ACTUATED_INPUTS], axis=0)],
+        "u_max_v": [_f(v) for v in np.max(u[:, ACTUATED_INPUTS], axis=0)],
         "saturated_fraction": _f(np.mean(sat)),
         "last_saturated_s": _f(t[np.nonzero(sat)[0][-1]]) if sat.any() else None,
-        "settle_time_s": settle_time(t, th1, sc["settle_band_rad"]),
+        "settle_time_s": settle_time(t, th1, sc.settle_band_rad),
         "final_abs_th1_rad": _f(abs(th1[-1])),
         "final_abs_d_m": _f(np.max(np.abs(x[-1, :2] - origin))),
     }
     m["upright"] = bool(m["completed"] and np.all(np.abs(th1) < UPRIGHT_LIMIT_RAD))
-    if "u_unsat" in run and np.isfinite(run["u_unsat"]).any():
-        uu = run["u_unsat"][:, ACTUATED]
+    if run.u_unsat is not None and np.isfinite(run.u_unsat).any():
+        uu = run.u_unsat[:, ACTUATED_INPUTS]
         m["peak_abs_u_unsat_v"] = [_f(v) for v in np.nanmax(np.abs(uu), axis=0)]
         m["u0_unsat_v"] = [_f(v) for v in uu[0]]
     windows = disturbance_windows(sc, t[-1])
@@ -83,7 +82,7 @@ def compute(run, sc, u_max_v):
             if k0 >= len(t) or not sel.any():
                 continue
             dev = np.maximum(dev, np.max(np.abs(x[sel] - x[k0]), axis=0))
-            udev = np.maximum(udev, np.max(np.abs(u[sel][:, ACTUATED]), axis=0))
+            udev = np.maximum(udev, np.max(np.abs(u[sel][:, ACTUATED_INPUTS]), axis=0))
         m["disturbed_peak_dev"] = [_f(v) for v in dev]
         m["disturbed_peak_abs_u_v"] = [_f(v) for v in udev]
     m.update(_estimation(run, t))
@@ -92,9 +91,9 @@ def compute(run, sc, u_max_v):
 
 def _estimation(run, t):
     out = {}
-    if "xhat" not in run:
+    if run.xhat is None:
         return out
-    e = run["xhat"] - run["x"]
+    e = run.xhat - run.x
     ok = np.all(np.isfinite(e), axis=1)
     if not ok.any():
         return out
@@ -107,13 +106,13 @@ def _estimation(run, t):
     initial, final = float(np.max(np.abs(e[0]))), float(np.max(np.abs(e[tail])))
     out["final_est_error"] = _f(final)
     out["est_error_converged"] = bool(final <= max(1e-9, 1e-6 * initial))
-    if "w_hat" in run:
+    if run.w_hat is not None:
         # w^ logged at k+1 estimates w_k (one-step delay); skip the detector's first ticks.
-        wh, w = run["w_hat"][1:], run["w"][:-1]
+        wh, w = run.w_hat[1:], run.w[:-1]
         good = np.all(np.isfinite(wh), axis=1)
         good[:min(len(good), 20)] = False
         if good.any():
-            out["w_hat_error_v"] = _f(np.max(np.abs(wh[good][:, ACTUATED] - w[good][:, ACTUATED])))
+            out["w_hat_error_v"] = _f(np.max(np.abs(wh[good][:, ACTUATED_INPUTS] - w[good][:, ACTUATED_INPUTS])))
     return out
 
 

@@ -17,7 +17,7 @@ config fields must match.
   and clipped to +-440 deg/s (the sensor's range); angle = sign * th1 + bias * t, rounded to
   integer degrees: the sensor integrates its own (biased) rate, so the bias drifts the angle.
   The rate noise is not integrated into the angle (the sensor integrates at a much higher
-  rate, which averages it out). hostsim.fake_ev3 restarts the angle at the mode switch, as
+  rate, which averages it out). hostsim.world.fake_ev3 restarts the angle at the mode switch, as
   the sensor does; its absolute offset here does not matter.
 * Battery: open-circuit voltage minus internal resistance times the current drawn.
 

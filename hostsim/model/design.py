@@ -8,7 +8,7 @@ import control
 import numpy as np
 
 from hostsim.errors import DesignError
-from hostsim.model import state_scale_to_si
+from hostsim.model.equations import state_scale_to_si
 
 # Section 7: Q = diag(20, 20, 1e7, 1, ..., 1), R = diag(50, 50, 50, 5000, 5000), in the
 # paper's units (d in cm). The extraction lost the exponent's sign; 1e+7 is the one whose

@@ -2,7 +2,7 @@
 
 The firmware's session (calibration, loop, safety, log) runs as on the brick, with a
 ``VirtualClock``: whenever it sleeps, the simulated world catches up to the wake-up time.
-The world is the nonlinear plant (hostsim.plant), the sensor models (hostsim.sensors) and,
+The world is the nonlinear plant (hostsim.world.plant), the sensor models (hostsim.world.sensors) and,
 with ``sysfs=True``, the fake EV3 tree read and written by the firmware's real device layer
 (tipbot_fw.ev3io); with ``sysfs=False`` an in-memory device (faster, for Monte Carlo).
 
@@ -12,7 +12,7 @@ brick), the motor voltage is duty x battery voltage, held until the next write (
 hold), plus the scenario's input disturbance. ``extra_delay_ticks`` delays the voltages by
 whole ticks more; ``jitter_s`` makes each wake-up late by |N(0, jitter_s)| (rounded to the
 plant's 1 ms step). The plant integrates with the scenario's ``plant_method`` at 1 kHz, one
-``advance`` per piece of constant input (hostsim.plant).
+``advance`` per piece of constant input (hostsim.world.plant).
 
 Start: like a person holding the robot, the world keeps the plant at the scenario's start
 pose while the firmware calibrates the gyro (about 1.1 s, with the scenario's gyro bias and
@@ -33,46 +33,38 @@ import tempfile
 
 import numpy as np
 
-from hostsim.model import RobotModel, state_scale_to_si
-from hostsim.params import load_params
-from hostsim.plant import Plant
-from hostsim.scenario import disturbance_at
-from hostsim.sensors import SensorModel
+from hostsim.model.equations import RobotModel, state_scale_to_si
+from hostsim.model.params import load_params, scaled_params
+from hostsim.sim.result import RunResult
+from hostsim.world.plant import Plant
+from hostsim.sim.scenario import disturbance_at
+from hostsim.world.sensors import SensorModel
 from tipbot_fw import config as fw_config
 from tipbot_fw import logfile
 from tipbot_fw.calibration import sample_counts
 from tipbot_fw.clock import VirtualClock
 from tipbot_fw.cues import QUIET as QUIET_CUES
 from tipbot_fw.devices import MemoryDevices
-from tipbot_fw.gains import gains_from_dict, load_gains
+from tipbot_fw.config import MOTOR_ROLES
+from tipbot_fw.gains import ACTUATED_INPUTS, gains_from_dict, load_gains
 from tipbot_fw.session import run_session
 
-ROLES = ("right_wheel", "left_wheel", "joint2", "joint3")
-MODEL_INPUT = (0, 1, 3, 4)   # u index of each role
 DEFAULT_IO_LATENCY_S = 0.002
 PLANT_DT_S = 0.001
 _EPS_S = 1e-9
 
 
-def scaled_params(scale, params=None):
-    """Parameters with the scenario's multipliers applied."""
-    p = dict(load_params() if params is None else params)
-    for name, factor in scale.items():
-        p[name] = p[name] * factor
-    return p
-
-
 def firmware_config(sc, rw_m, overrides=None):
     """The firmware's configuration for a scenario: defaults + what the scenario implies."""
     doc = {
-        "start_pose_rad": {"th1": sc["x0_si"][2], "th2": sc["x0_si"][3], "th3": sc["x0_si"][4]},
-        "gyro_sign": int(sc["sensors"]["gyro_sign"]),
+        "start_pose_rad": {"th1": sc.x0_si[2], "th2": sc.x0_si[3], "th3": sc.x0_si[4]},
+        "gyro_sign": int(sc.sensors.gyro_sign),
         "wheel_radius_m": rw_m,
         "realtime_priority": 0,
     }
     if overrides:
         doc.update(overrides)
-    return fw_config.config_from_overrides(doc, "<scenario %s>" % sc["name"])
+    return fw_config.config_from_overrides(doc, "<scenario %s>" % sc.name)
 
 
 def calibration_end_s(config, ts_s):
@@ -95,12 +87,12 @@ class World:
         self.io_latency_s = io_latency_s
         self.rng = rng
         self.devices = None                     # MemoryDevices, when not on the fake
-        self.ports = None                       # fake EV3 motor ports, in ROLES order
-        self.battery_v = sc["sensors"]["battery_v"]
-        self.pushes = sorted((t_release_s + p["t_s"], p["th1_dot_rad_s"]) for p in sc["pushes"])
-        edges = {d[k] for d in sc["disturbances"] for k in ("t_start_s", "t_end_s")}
+        self.ports = None                       # fake EV3 motor ports, in MOTOR_ROLES order
+        self.battery_v = sc.sensors.battery_v
+        self.pushes = sorted((t_release_s + p.t_s, p.th1_dot_rad_s) for p in sc.pushes)
+        edges = {t for d in sc.disturbances for t in (d.t_start_s, d.t_end_s)}
         self.breaks = sorted({t_release_s + t for t in edges} | {t for t, _ in self.pushes})
-        self.delay = [np.zeros(5)] * sc["extra_delay_ticks"]
+        self.delay = [np.zeros(5)] * sc.extra_delay_ticks
         self.v_prev = np.zeros(5)
         self.readings = None
         self.log_t, self.log_x, self.log_u, self.log_w = [], [], [], []
@@ -134,7 +126,7 @@ class World:
         signs = self.sensors.motor_signs
         scale = self.battery_v / 100.0
         for i, d in enumerate(self.duties()):
-            v[MODEL_INPUT[i]] = signs[i] * d * scale
+            v[ACTUATED_INPUTS[i]] = signs[i] * d * scale
         return v
 
     # -- time
@@ -149,8 +141,8 @@ class World:
         if self.fake is not None:
             # Where each loop iteration's sysfs operations end in the fake's client-I/O log.
             self.io_marks.append(len(self.fake.io.log))
-        if self.sc["jitter_s"] > 0:
-            late = abs(self.rng.normal(0.0, self.sc["jitter_s"]))
+        if self.sc.jitter_s > 0:
+            late = abs(self.rng.normal(0.0, self.sc.jitter_s))
             t_to = t_to + round(late / PLANT_DT_S) * PLANT_DT_S
             self.clock.t = t_to
         self.delay.append(self.motor_volts())
@@ -206,41 +198,42 @@ def run_firmware(sc, gains_path=None, gains_doc=None, sysfs=True, log_path=None,
                  config_overrides=None):
     """Run a scenario with the firmware in the loop.
 
-    gains_doc (a parsed gains document) replaces the file at gains_path / sc["gains"].
+    gains_doc (a parsed gains document) replaces the file at gains_path / sc.gains.
     keep_rows: read the firmware's log back for its estimates (a temporary log unless
     log_path is given); without it only the plant's side is returned.
 
-    Returns a dict: t_s (tick times from the release), io_per_iteration (sysfs runs only: the
-    device layer's (op, path, bytes) between two consecutive sleeps of the loop), x (plant state at the ticks, SI), u
-    (the motors' volts over each tick, from the duties), w (the disturbance added to them),
+    -> RunResult: t_s (tick times from the release), x (plant state at the ticks, SI), u (the
+    motors' volts over each tick, from the duties), w (the disturbance added to them),
     d_origin_m (see the module docstring), exit_code, stop_reason, completed, header (the
-    firmware log's), and with keep_rows: xhat, w_hat, y (the firmware's, shifted into the
-    scenario's frame), u_cmd (the inputs the firmware applied), u_unsat (before saturation).
+    firmware log's), io_per_iteration (sysfs runs only: the device layer's (op, path, bytes)
+    between two consecutive sleeps of the loop), and with keep_rows: xhat, w_hat, y (the
+    firmware's, shifted into the scenario's frame), u_cmd (the inputs the firmware applied),
+    u_unsat (before saturation).
     """
-    gains_path = gains_path or sc["gains"]
-    rng = np.random.default_rng(sc["seed"])
+    gains_path = gains_path or sc.gains
+    rng = np.random.default_rng(sc.seed)
     nominal = load_params() if params is None else params
-    p = scaled_params(sc["param_scale"], nominal)
-    model = RobotModel(sc["plant_variant"], p)
+    p = scaled_params(sc.param_scale, nominal)
+    model = RobotModel(sc.plant_variant, p)
     to_model = 1.0 / np.diag(state_scale_to_si(model.variant))
-    plant = Plant(model, np.array(sc["x0_si"]) * to_model, dt_s=PLANT_DT_S, method=sc["plant_method"])
+    plant = Plant(model, np.array(sc.x0_si) * to_model, dt_s=PLANT_DT_S, method=sc.plant_method)
     if gains_doc is not None:
-        gains = gains_from_dict(gains_doc, "<%s gains for %s>" % (gains_doc["model_variant"], sc["name"]))
+        gains = gains_from_dict(gains_doc, "<%s gains for %s>" % (gains_doc["model_variant"], sc.name))
     else:
         gains = load_gains(gains_path)
     config = firmware_config(sc, nominal["rw_m"], config_overrides)
-    s = sc["sensors"]
-    signs = tuple(config["polarity"][r] for r in ROLES)
-    sensors = SensorModel(p["rw_m"], motor_signs=signs, gyro_sign=int(s["gyro_sign"]),
-                          gyro_bias_dps=s["gyro_bias_dps"], gyro_noise_dps=s["gyro_noise_dps"], rng=rng,
-                          battery_v=s["battery_v"])
+    s = sc.sensors
+    signs = tuple(config["polarity"][r] for r in MOTOR_ROLES)
+    sensors = SensorModel(p["rw_m"], motor_signs=signs, gyro_sign=int(s.gyro_sign),
+                          gyro_bias_dps=s.gyro_bias_dps, gyro_noise_dps=s.gyro_noise_dps, rng=rng,
+                          battery_v=s.battery_v)
     t_release = calibration_end_s(config, gains.ts_s)
     fake = None
     if sysfs:
-        from hostsim.fake_ev3 import FakeEV3
+        from hostsim.world.fake_ev3 import FakeEV3
         from tipbot_fw.ev3io import Ev3Devices
-        fake = FakeEV3(battery_v=s["battery_v"])
-    world = World(sc, plant, sensors, gains.ts_s, t_release, fake=fake, io_latency_s=sc["io_latency_s"], rng=rng)
+        fake = FakeEV3(battery_v=s.battery_v)
+    world = World(sc, plant, sensors, gains.ts_s, t_release, fake=fake, io_latency_s=sc.io_latency_s, rng=rng)
     clock = VirtualClock(on_sleep=world.on_sleep)
     world.clock = clock
     tmp = None
@@ -249,14 +242,14 @@ def run_firmware(sc, gains_path=None, gains_doc=None, sysfs=True, log_path=None,
         log_path = os.path.join(tmp.name, "run.log")
     try:
         if sysfs:
-            world.ports = tuple(config["ports"][r] for r in ROLES)
+            world.ports = tuple(config["ports"][r] for r in MOTOR_ROLES)
             devices = Ev3Devices(config, sysfs_root=fake.sysfs_root, io=fake.io)
         else:
             devices = MemoryDevices(source=world.read, battery_v=lambda: world.battery_v)
             world.devices = devices
         try:
             code, header = run_session(devices, gains, config, clock, log_path=log_path,
-                                       duration_s=sc["duration_s"], say=lambda msg: None, cues=QUIET_CUES)
+                                       duration_s=sc.duration_s, say=lambda msg: None, cues=QUIET_CUES)
         finally:
             devices.close()
         rows = logfile.read_log(log_path)[1] if keep_rows and os.path.exists(log_path) else None
@@ -268,19 +261,19 @@ def run_firmware(sc, gains_path=None, gains_doc=None, sysfs=True, log_path=None,
     if not world.released:                      # stopped at its first tick
         world._record(t_release)
     rw = config["wheel_radius_m"]
-    x0 = sc["x0_si"]
+    x0 = sc.x0_si
     d_origin = np.array([x0[0] - rw * x0[2], x0[1] - rw * x0[2]])
-    out = _world_result(world, sc, d_origin)
+    out = _world_side(world)
     if fake is not None:
         out["io_per_iteration"] = [fake.io.log[a:b] for a, b in zip(world.io_marks, world.io_marks[1:])]
-    out.update(exit_code=code, stop_reason=header.get("stop_reason"), header=header,
-               completed=code == 0 and header.get("stop_reason") == "completed")
     if rows is not None:
-        out.update(_firmware_side(rows, gains, d_origin, len(out["t_s"])))
-    return out
+        out.update(_firmware_side(rows, d_origin, len(out["t_s"])))
+    return RunResult(d_origin_m=d_origin, exit_code=code, stop_reason=header.get("stop_reason"), header=header,
+                     completed=code == 0 and header.get("stop_reason") == "completed", **out)
 
 
-def _world_result(world, sc, d_origin):
+def _world_side(world):
+    """What the plant did: t_s, x, u, w."""
     n = len(world.log_t)
     u = np.zeros((n, 5))
     w = np.zeros((n, 5))
@@ -289,11 +282,10 @@ def _world_result(world, sc, d_origin):
         # log_u[k] is what the plant got over tick k; the last tick has none: repeat.
         u[:m], w[:m] = world.log_u[:n], world.log_w[:n]
         u[m:], w[m:] = world.log_u[-1], world.log_w[-1]
-    return dict(t_s=np.array(world.log_t), x=np.array(world.log_x).reshape(n, 10), u=u, w=w,
-                d_origin_m=d_origin)
+    return dict(t_s=np.array(world.log_t), x=np.array(world.log_x).reshape(n, 10), u=u, w=w)
 
 
-def _firmware_side(rows, gains, d_origin, n):
+def _firmware_side(rows, d_origin, n):
     """The firmware's own view from its log rows (by column name), tick k <-> plant sample k."""
     rows = rows[:n]
     names = logfile.COLUMN_NAMES
@@ -307,11 +299,7 @@ def _firmware_side(rows, gains, d_origin, n):
     xhat = block("xt_d_r", 10) + shift
     w_hat = block("w_r", 5)
     u_cmd = block("u_r", 5)
-    if "u_cmd_r" in names:
-        u_unsat = block("u_cmd_r", 5)
-    else:
-        # Row k holds x~_k and w^_{k-1}, the two terms of u_k.
-        u_unsat = -(block("xt_d_r", 10) @ gains.K.T) - (w_hat @ gains.K_w.T)
+    u_unsat = block("u_cmd_r", 5)
     if len(rows) < n:
         pad = n - len(rows)
         y, xhat, w_hat, u_cmd, u_unsat = (np.vstack([a, np.full((pad, a.shape[1]), np.nan)])

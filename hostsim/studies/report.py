@@ -1,8 +1,8 @@
 """The simulation report (markdown): our runs beside the figures the paper reports.
 
 ``write_report(out_dir, docs, roa, mc)`` writes ``out_dir/report.md`` from the scenario
-metrics documents (hostsim.runner), the region of attraction (hostsim.roa) and the Monte
-Carlo (hostsim.montecarlo). The paper's numbers are transcribed below with where they
+metrics documents (hostsim.studies.runner), the region of attraction (hostsim.studies.roa) and the Monte
+Carlo (hostsim.studies.montecarlo). The paper's numbers are transcribed below with where they
 come from; its figures themselves are not in the text we have, only these statements.
 """
 import datetime
@@ -10,8 +10,8 @@ import os
 
 import numpy as np
 
-from hostsim.metrics import STATE_UNIT_GROUPS
-from hostsim.montecarlo import trio
+from hostsim.sim.metrics import STATE_UNIT_GROUPS
+from hostsim.studies.stats import trio
 
 CM = 100.0
 
@@ -114,7 +114,7 @@ def _md(text):
 
 
 def summary_table(docs):
-    from hostsim.runner import SUMMARY_COLUMNS, summary_rows
+    from hostsim.studies.runner import SUMMARY_COLUMNS, summary_rows
     head = ["scenario"] + [_md(name) for name, _ in SUMMARY_COLUMNS]
     out = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for doc in docs:
@@ -124,7 +124,7 @@ def summary_table(docs):
 
 
 def _figures(doc, rel):
-    from hostsim.plots import caption
+    from hostsim.studies.plots import caption
     lines = []
     for key, name in doc.get("plots", {}).items():
         text = caption(doc["scenario"], key)
@@ -183,7 +183,7 @@ def cannot_hold(docs, roa=None):
         items.append(
             "**Appendix D's PD numbers cannot be reproduced: the paper gives neither its gains nor its "
             "structure.** Its deviations (th1 0.7 rad, th3 -1.47 rad = 84 degrees) are far outside the range "
-            "where the linear model, and a 7.6 V drivetrain, mean anything. Our PD (hostsim.pd: the best PD "
+            "where the linear model, and a 7.6 V drivetrain, mean anything. Our PD (hostsim.model.pd: the best PD "
             "of a stated structure for the same LQ cost) deviates by %s rad in th1, th2, th3 under the same "
             "1 V disturbance on the linear model: it holds the robot, but its steady state moves, where the "
             "optimal law cancels the disturbance through K_w w^. The wheel-speed deviations are printed "
@@ -289,7 +289,7 @@ def write_report(out_dir, docs, roa=None, mc=None, extra_notes=(), firmware_note
             lines += [comparison_table(doc, COMPARISONS[name]), ""]
         if name == "appendix_d" and doc.get("pd"):
             pd = doc["pd"]
-            lines += ["PD baseline (hostsim.pd, %s units): LQ cost %.4g vs the LQR's %.4g (x%.3f), gains: %s." % (
+            lines += ["PD baseline (hostsim.model.pd, %s units): LQ cost %.4g vs the LQR's %.4g (x%.3f), gains: %s." % (
                 "/".join(sorted(set(pd["units"]))), pd["cost"], pd["lqr_cost"], pd["cost"] / pd["lqr_cost"],
                 ", ".join("%s %.4g" % kv for kv in pd["gains"].items())), ""]
         lines += [_figures(doc, name), ""]
@@ -310,7 +310,7 @@ def write_report(out_dir, docs, roa=None, mc=None, extra_notes=(), firmware_note
                   "masses, lengths, inertias x U(0.8, 1.2), motor constants x U(0.9, 1.1), gyro bias U(-2, 2) "
                   "deg/s, noise sigma U(0, 0.5) deg/s, encoder quantization, one extra tick of delay with "
                   "probability 1/2, wake-up jitter up to 1 ms, release th1(0) ~ U(-0.04, 0.04) rad; seed %d "
-                  "(hostsim.montecarlo). %.1f s on %d workers." % (
+                  "(hostsim.studies.montecarlo). %.1f s on %d workers." % (
                       meta["runs_per_gains"], meta["duration_s"], meta["plant_variant"], meta["seed"], meta["wall_s"],
                       meta["jobs"]), "", mc_table(mc), "", "![Monte Carlo](robustness/montecarlo.png)", "",
                   "_Monte Carlo: how many runs reached each peak tilt (left) and peak input (middle), and every "

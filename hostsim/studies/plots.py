@@ -6,7 +6,7 @@
 - ``positions.png``, ``velocities.png``, ``inputs.png``: as Figures 8, 9 and 10 (the paper
   draws its simulation in red and its experiment in blue: here the linear run is red and
   the firmware-in-the-loop run blue, the nonlinear ideal-measurement run green); inputs
-  before saturation dashed, on a scale logarithmic beyond the rails when they go far beyond;
+  before saturation dashed, and a demand beyond the axis drawn whole in an inset of the start;
 - ``compare_<mode>.png``: optimal against PD, as Figure A1;
 - robustness figures for the Monte Carlo and the region of attraction.
 
@@ -69,10 +69,10 @@ def _style(label, solo=False):
 
 
 def _shade(ax, sc):
-    end = sc["duration_s"]
-    for d in sc["disturbances"]:
-        if any(d["w_v"]) and d["t_start_s"] < end:
-            ax.axvspan(d["t_start_s"], min(d["t_end_s"], end), color="0.88", zorder=0)
+    end = sc.duration_s
+    for d in sc.disturbances:
+        if any(d.w_v) and d.t_start_s < end:
+            ax.axvspan(d.t_start_s, min(d.t_end_s, end), color="0.88", zorder=0)
     ax.set_xlim(0.0, end)
 
 
@@ -106,12 +106,12 @@ def _state_panels(axes, sc, runs, idx, estimates=False, errors=False, solo=False
         for label, run in runs.items():
             st = _style(label, solo)
             if errors:
-                if "xhat" in run:
-                    ax.plot(run["t_s"], (run["xhat"][:, i] - run["x"][:, i]) * DISPLAY[i], label=label, **st)
+                if run.xhat is not None:
+                    ax.plot(run.t_s, (run.xhat[:, i] - run.x[:, i]) * DISPLAY[i], label=label, **st)
                 continue
-            ax.plot(run["t_s"], run["x"][:, i] * DISPLAY[i], label=label, **st)
-            if estimates and "xhat" in run:
-                ax.plot(run["t_s"], run["xhat"][:, i] * DISPLAY[i], color=st["color"], linestyle=":", linewidth=1.2,
+            ax.plot(run.t_s, run.x[:, i] * DISPLAY[i], label=label, **st)
+            if estimates and run.xhat is not None:
+                ax.plot(run.t_s, run.xhat[:, i] * DISPLAY[i], color=st["color"], linestyle=":", linewidth=1.2,
                         zorder=st["zorder"], label=label + " estimate")
         ax.set_ylabel(STATE_LABELS[i], fontsize=8)
         ax.set_title("(%s)" % LETTERS[p], fontsize=8, loc="left")
@@ -128,7 +128,7 @@ def _optimal(runs):
 
 
 def states_estimates(sc, runs, path):
-    fig, axes = _grid(5, 2, caption(sc["name"], "states_estimates"))
+    fig, axes = _grid(5, 2, caption(sc.name, "states_estimates"))
     # Column-major like the paper: positions left (a-e), rates right (f-j).
     _state_panels(axes.T, sc, runs, range(10), estimates=True)
     _xlabel(axes)
@@ -140,15 +140,15 @@ def transient_window_s(runs, ts_s, fraction=0.01, min_ticks=10):
     of its start (times 1.5, at least min_ticks); None if it never does or has no start."""
     ends = []
     for label, run in runs.items():
-        if label.startswith("firmware/") or "xhat" not in run:
+        if label.startswith("firmware/") or run.xhat is None:
             continue
-        e = np.max(np.abs(run["xhat"] - run["x"]), axis=1)
+        e = np.max(np.abs(run.xhat - run.x), axis=1)
         if not np.isfinite(e).all() or e[0] == 0:
             continue
         above = np.nonzero(e > fraction * e[0])[0]
         if above[-1] == len(e) - 1:
             return None
-        ends.append(run["t_s"][above[-1] + 1])
+        ends.append(run.t_s[above[-1] + 1])
     if not ends:
         return None
     return max(1.5 * max(ends), min_ticks * ts_s)
@@ -156,10 +156,10 @@ def transient_window_s(runs, ts_s, fraction=0.01, min_ticks=10):
 
 
 def estimation_errors(sc, runs, path):
-    fig, axes = _grid(5, 2, caption(sc["name"], "estimation_errors"))
+    fig, axes = _grid(5, 2, caption(sc.name, "estimation_errors"))
     _state_panels(axes.T, sc, runs, range(10), errors=True)
-    t_end = next(iter(runs.values()))["t_s"][-1]
-    ts_s = np.diff(next(iter(runs.values()))["t_s"][:2])[0]
+    t_end = next(iter(runs.values())).t_s[-1]
+    ts_s = np.diff(next(iter(runs.values())).t_s[:2])[0]
     window = transient_window_s(runs, ts_s)
     if window is not None and window < 0.05 * t_end:
         # The detector (poles at 0.2) removes the initial estimation error within a few ticks:
@@ -173,11 +173,11 @@ def estimation_errors(sc, runs, path):
 def _inset_start(ax, runs, i, window_s):
     ins = ax.inset_axes([0.62, 0.52, 0.36, 0.44])
     for label, run in runs.items():
-        if "xhat" not in run:
+        if run.xhat is None:
             continue
-        sel = run["t_s"] <= window_s
+        sel = run.t_s <= window_s
         st = _style(label)
-        ins.plot(run["t_s"][sel], (run["xhat"][sel, i] - run["x"][sel, i]) * DISPLAY[i], marker=".", markersize=3,
+        ins.plot(run.t_s[sel], (run.xhat[sel, i] - run.x[sel, i]) * DISPLAY[i], marker=".", markersize=3,
                  color=st["color"], linewidth=min(st["linewidth"], 1.5), alpha=st["alpha"], zorder=st["zorder"])
     ins.set_xlim(0, window_s)
     ins.tick_params(labelsize=5.5, pad=1)
@@ -193,39 +193,39 @@ def _inset_demand(ax, runs, i, u_max_v, ts_s):
     k = int(np.nanargmax(np.abs(u)))
     # the demand's first excursion beyond the rails, with room after it (at least 20 ticks)
     beyond = np.nonzero(np.abs(np.nan_to_num(u)) > u_max_v)[0]
-    beyond = beyond[run["t_s"][beyond] <= 0.1 * run["t_s"][-1]]
-    end = run["t_s"][beyond[-1]] if len(beyond) else run["t_s"][k]
-    window = min(max(20 * ts_s, 1.5 * end, 2 * run["t_s"][k]), 0.25 * run["t_s"][-1])
+    beyond = beyond[run.t_s[beyond] <= 0.1 * run.t_s[-1]]
+    end = run.t_s[beyond[-1]] if len(beyond) else run.t_s[k]
+    window = min(max(20 * ts_s, 1.5 * end, 2 * run.t_s[k]), 0.25 * run.t_s[-1])
     ins = ax.inset_axes([0.60, 0.08, 0.38, 0.84])
     for lab, r in runs.items():
-        sel = r["t_s"] <= window
+        sel = r.t_s <= window
         st = _style(lab)
-        ins.plot(r["t_s"][sel], r["u"][sel, i], color=st["color"], linewidth=min(st["linewidth"], 1.5),
+        ins.plot(r.t_s[sel], r.u[sel, i], color=st["color"], linewidth=min(st["linewidth"], 1.5),
                  alpha=st["alpha"], zorder=st["zorder"])
         if _demand(r, i) is not None:
-            ins.plot(r["t_s"][sel], _demand(r, i)[sel], color=st["color"], linestyle="--", marker=".",
+            ins.plot(r.t_s[sel], _demand(r, i)[sel], color=st["color"], linestyle="--", marker=".",
                      markersize=2.5, linewidth=0.7, zorder=st["zorder"] - 0.5)
     for s in (-1, 1):
         ins.axhline(s * u_max_v, color="k", linewidth=0.5, linestyle="-.")
     ins.set_xlim(0, window)
-    ins.annotate("%.1f V" % u[k], (run["t_s"][k], u[k]), xytext=(8, -4 if u[k] > 0 else 4),
+    ins.annotate("%.1f V" % u[k], (run.t_s[k], u[k]), xytext=(8, -4 if u[k] > 0 else 4),
                  textcoords="offset points", fontsize=6, color=_style(label)["color"])
     ins.tick_params(labelsize=5.5, pad=1)
     ins.set_title("first %.0f ms, full scale" % (window * 1e3), fontsize=6, pad=1.5)
     ins.grid(True, linewidth=0.3)
-    ax.annotate("", (run["t_s"][k], ax.get_ylim()[1 if u[k] > 0 else 0]), xytext=(0, -14 if u[k] > 0 else 14),
+    ax.annotate("", (run.t_s[k], ax.get_ylim()[1 if u[k] > 0 else 0]), xytext=(0, -14 if u[k] > 0 else 14),
                 textcoords="offset points", arrowprops=dict(arrowstyle="->", linewidth=0.8))
 
 
 def positions(sc, runs, path):
-    fig, axes = _grid(5, 1, caption(sc["name"], "positions"))
+    fig, axes = _grid(5, 1, caption(sc.name, "positions"))
     _state_panels(axes, sc, runs, range(5))
     _xlabel(axes)
     return _save(fig, path)
 
 
 def velocities(sc, runs, path):
-    fig, axes = _grid(5, 1, caption(sc["name"], "velocities"))
+    fig, axes = _grid(5, 1, caption(sc.name, "velocities"))
     _state_panels(axes, sc, runs, range(5, 10))
     _xlabel(axes)
     return _save(fig, path)
@@ -236,27 +236,27 @@ INPUT_AXIS_RAILS = 2.5
 
 
 def _demand(run, i):
-    u = run.get("u_unsat")
+    u = run.u_unsat
     return None if u is None or not np.isfinite(u[:, i]).any() else u[:, i]
 
 
 def inputs(sc, runs, u_max_v, path):
-    fig, axes = _grid(4, 1, caption(sc["name"], "inputs"))
-    ts_s = np.diff(next(iter(runs.values()))["t_s"][:2])[0]
+    fig, axes = _grid(4, 1, caption(sc.name, "inputs"))
+    ts_s = np.diff(next(iter(runs.values())).t_s[:2])[0]
     for p, (i, name) in enumerate(INPUT_LABELS):
         ax = axes.flat[p]
         _shade(ax, sc)
         for label, run in runs.items():
             st = _style(label)
-            ax.plot(run["t_s"], run["u"][:, i], label=label, **st)
+            ax.plot(run.t_s, run.u[:, i], label=label, **st)
             if _demand(run, i) is not None:
-                ax.plot(run["t_s"], _demand(run, i), color=st["color"], linestyle="--", linewidth=0.7,
+                ax.plot(run.t_s, _demand(run, i), color=st["color"], linestyle="--", linewidth=0.7,
                         alpha=0.7, zorder=st["zorder"] - 0.5)
         for s in (-1, 1):
             ax.axhline(s * u_max_v, color="k", linewidth=0.6, linestyle="-.")
         limit = 1.05 * INPUT_AXIS_RAILS * u_max_v
         peak = max([np.nanmax(np.abs(_demand(r, i))) for r in runs.values() if _demand(r, i) is not None] or [0.0])
-        shown = max(1.15 * min(peak, limit), 1.15 * np.max([np.abs(r["u"][:, i]).max() for r in runs.values()]), 0.5)
+        shown = max(1.15 * min(peak, limit), 1.15 * np.max([np.abs(r.u[:, i]).max() for r in runs.values()]), 0.5)
         ax.set_ylim(-shown, shown)
         if peak > shown:
             _inset_demand(ax, runs, i, u_max_v, ts_s)
@@ -278,13 +278,13 @@ def _figure_legend(fig, ax):
 def compare_controllers(sc, runs, mode, u_max_v, path):
     """Optimal against PD, states and inputs, one mode (as Figure A1)."""
     pair = {k: v for k, v in runs.items() if k.startswith(mode + "/")}
-    fig, axes = _grid(7, 2, caption(sc["name"], "compare_" + mode), height=1.8)
+    fig, axes = _grid(7, 2, caption(sc.name, "compare_" + mode), height=1.8)
     _state_panels(axes[:5].T, sc, pair, range(10), solo=True)
     for p, (i, name) in enumerate(INPUT_LABELS):
         ax = axes[5 + p // 2, p % 2]
         _shade(ax, sc)
         for label, run in pair.items():
-            ax.plot(run["t_s"], run["u"][:, i], label=label, **_style(label, solo=True))
+            ax.plot(run.t_s, run.u[:, i], label=label, **_style(label, solo=True))
         for s in (-1, 1):
             ax.axhline(s * u_max_v, color="k", linewidth=0.6, linestyle="-.")
         ax.set_ylabel(name, fontsize=8)
@@ -303,7 +303,7 @@ def scenario_plots(sc, runs, u_max_v, out_dir):
         "velocities": velocities(sc, opt, os.path.join(out_dir, "velocities.png")),
         "inputs": inputs(sc, opt, u_max_v, os.path.join(out_dir, "inputs.png")),
     }
-    if len(sc["controllers"]) > 1:
+    if len(sc.controllers) > 1:
         for mode in sorted({label.split("/")[0] for label in runs}):
             out["compare_" + mode] = compare_controllers(sc, runs, mode, u_max_v,
                                                          os.path.join(out_dir, "compare_%s.png" % mode))

@@ -1,20 +1,20 @@
 """Compare the ``paper`` variant with the paper's Appendix C; contrast the ``physical`` one.
 
-``python -m hostsim.paper_check`` prints, for |A|, |B| and |K|, the median and maximum
+``python -m hostsim paper-check`` prints, for |A|, |B| and |K|, the median and maximum
 relative error over the entries whose printed magnitude exceeds 1e-3 (the printed matrices
 lost their minus signs), how the physical model's A and B differ from the paper's, and the
 spectral radius of A - B K for each of the two gains on each of the two models. Exits 1 if
 the paper variant misses the 2 % tolerance.
 """
+import argparse
 import json
 import os
-import sys
 
 import numpy as np
 
-from hostsim.gains import design_gains
-from hostsim.model import state_scale_to_si
-from hostsim.params import load_params
+from hostsim.model.gains import DEFAULT_TS_S, design_gains
+from hostsim.model.equations import state_scale_to_si
+from hostsim.model.params import DEFAULT_PARAMS_PATH, load_params
 
 APPENDIX_C = os.path.join(os.path.dirname(os.path.abspath(__file__)), "data", "paper_appendix_c.json")
 TOLERANCE = 0.02
@@ -35,9 +35,9 @@ def relative_errors(ours, printed, floor=SIGNIFICANT):
 
 def to_si(g):
     """(A, B, K) of a design expressed with the state in SI units."""
-    t = state_scale_to_si(g["variant"])
+    t = state_scale_to_si(g.variant)
     ti = np.linalg.inv(t)
-    return t @ g["A"] @ ti, t @ g["B"], g["K"] @ ti
+    return t @ g.A @ ti, t @ g.B, g.K @ ti
 
 
 def cross_spectral_radii(designs):
@@ -58,16 +58,16 @@ def run(params=None, ts_s=0.005):
     paper = designs["paper"]
     errors = {}
     for key in ("A", "B", "K"):
-        r = relative_errors(paper[key], printed[key])
+        r = relative_errors(getattr(paper, key), printed[key])
         errors[key] = (float(np.median(r)), float(np.max(r)), int(r.size))
     sign_mismatch = {}
     # The physical model, in the paper's units (cm), against the paper's matrices.
-    t_phys = state_scale_to_si(designs["physical"]["variant"])
-    t_paper_inv = np.linalg.inv(state_scale_to_si(paper["variant"]))
+    t_phys = state_scale_to_si(designs["physical"].variant)
+    t_paper_inv = np.linalg.inv(state_scale_to_si(paper.variant))
     conv = t_paper_inv @ t_phys
-    a_phys = conv @ designs["physical"]["A"] @ np.linalg.inv(conv)
-    b_phys = conv @ designs["physical"]["B"]
-    for key, ours, theirs in (("A", a_phys, paper["A"]), ("B", b_phys, paper["B"])):
+    a_phys = conv @ designs["physical"].A @ np.linalg.inv(conv)
+    b_phys = conv @ designs["physical"].B
+    for key, ours, theirs in (("A", a_phys, paper.A), ("B", b_phys, paper.B)):
         mask = np.abs(theirs) > SIGNIFICANT
         rel = np.abs(ours[mask] - theirs[mask]) / np.abs(theirs[mask])
         flips = int(np.sum(np.sign(ours[mask]) != np.sign(theirs[mask])))
@@ -95,12 +95,13 @@ def report(res):
     return "\n".join(lines)
 
 
-def main():
-    res = run()
+def main(argv=None):
+    ap = argparse.ArgumentParser(prog="python -m hostsim paper-check", description=__doc__.split("\n\n")[0])
+    ap.add_argument("--params", default=DEFAULT_PARAMS_PATH, help="robot parameters JSON (default params/robot.json)")
+    ap.add_argument("--ts", type=float, default=DEFAULT_TS_S, help="loop period in seconds (default 0.005)")
+    args = ap.parse_args(argv)
+    res = run(load_params(args.params), args.ts)
     print(report(res))
     ok = all(mx <= TOLERANCE for _, mx, _ in res["errors"].values())
     return 0 if ok else 1
 
-
-if __name__ == "__main__":
-    sys.exit(main())
