@@ -271,7 +271,8 @@ def test_the_owner_is_told_to_hold_then_to_let_go_right_before_the_first_tick(tm
                 cues=OwnerCues(streams=[stream]))
     settle, n = sample_counts(S.fw_config()['gyro_calibration'], S.load().ts_s)
     assert stream.lines == [('tipbot: HOLD the robot still and upright: calibrating the gyro (0.2 s)', 0),
-                            ('tipbot: LET GO NOW: balancing', settle + n)]
+                            ('tipbot: LET GO NOW: balancing', settle + n),
+                            ('tipbot: DONE: ran its duration (exit 0)', settle + n + 20)]
     rows = read_log(path)[1]
     assert len(rows) == 20 and not rows[:, col('duty_r'):col('duty_3') + 1].any()   # no wheel ever drove
 
@@ -282,7 +283,8 @@ def test_no_let_go_when_the_calibration_refuses(tmp_path):
     stream = ReadCountingStream(dev)
     code, _ = run_session(dev, S.load(), S.fw_config(), VirtualClock(), say=lambda m: None,
                           cues=OwnerCues(streams=[stream]))
-    assert code == 4 and [text.split(':')[1].split()[0] for text, _ in stream.lines] == ['HOLD']
+    assert code == 4 and [text for text, _ in stream.lines][1:] == ['tipbot: NOT STARTED: moved while calibrating (exit 4)']
+    assert stream.lines[0][0].startswith('tipbot: HOLD')
 
 
 def test_cues_go_to_stdout_and_stderr_once_each_or_once_for_one_terminal(tmp_path, monkeypatch):

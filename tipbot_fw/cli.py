@@ -1,5 +1,6 @@
 """Command line: python3 -m tipbot_fw {run,check,calibrate,bench,identify} ... (exit codes: tipbot_fw.safety)."""
 import argparse
+import os
 
 from tipbot_fw import identify, logfile, safety
 from tipbot_fw.bench import brick_bench
@@ -7,8 +8,11 @@ from tipbot_fw.calibration import calibrate_gyro
 from tipbot_fw.clock import MonotonicClock
 from tipbot_fw.config import ConfigError, load_config
 from tipbot_fw.console import say as _say
+from tipbot_fw.cues import OwnerCues
+from tipbot_fw.feedback import BrickSignals
 from tipbot_fw.gains import GainsError, load_gains
 from tipbot_fw.session import log_refused_start, run_session
+from tipbot_fw.telemetry import DEFAULT_EVERY, TelemetryError, TelemetrySender
 
 CHECK_PERIOD_S = 0.005   # gyro sampling period for check/calibrate (no gains file involved)
 
@@ -23,6 +27,12 @@ def _positive_float(text):
     return v
 
 
+def _positive_int(text):
+    if not text.isdigit() or int(text) < 1:
+        raise argparse.ArgumentTypeError('must be a positive whole number, got {!r}'.format(text))
+    return int(text)
+
+
 def _parser():
     p = argparse.ArgumentParser(prog='python3 -m tipbot_fw', description='tipbot firmware',
                                 epilog=safety.__doc__.split('\n', 1)[1],
@@ -31,8 +41,9 @@ def _parser():
 
     def common(sp):
         sp.add_argument('--config', metavar='FILE', help='JSON overriding fields of default_config.json')
-        sp.add_argument('--sysfs-root', metavar='DIR', default='/sys/class',
-                        help='root of the ev3dev sysfs tree (default /sys/class)')
+        # TIPBOT_SYSFS_ROOT: a fake EV3 behind the launcher (make sim-brick)
+        sp.add_argument('--sysfs-root', metavar='DIR', default=os.environ.get('TIPBOT_SYSFS_ROOT', '/sys/class'),
+                        help='root of the ev3dev sysfs tree (default $TIPBOT_SYSFS_ROOT or /sys/class)')
 
     sp = sub.add_parser('run', help='balance')
     sp.add_argument('--gains', metavar='FILE', required=True)
@@ -40,6 +51,12 @@ def _parser():
     sp.add_argument('--log', metavar='FILE',
                     help='run log (default tipbot-YYYYmmdd-HHMMSS.log in logs/ if the current directory '
                     'holds tipbot_fw/, else in the current directory)')
+    sp.add_argument('--quiet', action='store_true',
+                    help='no lights, no tones, no words on the brick\'s screen (messages stay on stderr)')
+    sp.add_argument('--telemetry', metavar='HOST:PORT',
+                    help='send live telemetry (UDP) there, e.g. to `python -m hostsim watch --port PORT`')
+    sp.add_argument('--telemetry-every', metavar='N', type=_positive_int, default=DEFAULT_EVERY,
+                    help='one datagram every N ticks (default {})'.format(DEFAULT_EVERY))
     common(sp)
     sp = sub.add_parser('check', help='devices, drivers, battery, gyro stillness; never drives motors')
     common(sp)
@@ -79,19 +96,46 @@ def main(argv=None):
     try:
         config = load_config(args.config)
         gains = load_gains(args.gains) if getattr(args, 'gains', None) else None
-    except (ConfigError, GainsError) as e:
+        telemetry = _telemetry(args)
+    except (ConfigError, GainsError, TelemetryError) as e:
         _say('refused to start: {}'.format(e))
         return safety.EXIT_INVALID
-    devices, why = _open_devices(config, args.sysfs_root)
-    if devices is None:
-        if args.command == 'run':     # a run's every exit but a refused command line writes a log
-            log_refused_start(_log_path(args), gains, config, args.duration,
-                              safety.DevicesMissing(' '.join(why.split())), say=_say)
-        return safety.EXIT_DEVICES
+    cues = _cues(args)
     try:
-        return COMMANDS[args.command](args, config, gains, devices)
+        devices, why = _open_devices(config, args.sysfs_root)
+        if devices is None:
+            if args.command == 'run':     # a run's every exit but a refused command line writes a log
+                error = safety.DevicesMissing(' '.join(why.split()))
+                log_refused_start(_log_path(args), gains, config, args.duration, error, say=_say)
+                cues.stopped(error.reason, error.exit_code)
+            return safety.EXIT_DEVICES
+        try:
+            args.cues, args.sender = cues, telemetry
+            return COMMANDS[args.command](args, config, gains, devices)
+        finally:
+            devices.close()
     finally:
-        devices.close()
+        cues.close()
+        if telemetry is not None:
+            telemetry.close()
+
+
+def _telemetry(args):
+    if getattr(args, 'telemetry', None) is None:
+        return None
+    return TelemetrySender(args.telemetry, args.telemetry_every)
+
+
+def _cues(args):
+    """The owner's cues of a run: words, and the brick's lights and tones unless --quiet."""
+    if args.command != 'run':
+        return OwnerCues(streams=())
+    if args.quiet:
+        return OwnerCues(screen=False)
+    brick = BrickSignals(args.sysfs_root)
+    for problem in brick.problems:
+        _say('no lights or tones: ' + problem)
+    return OwnerCues(brick=brick)
 
 
 def _log_path(args):
@@ -104,8 +148,13 @@ def _run(args, config, gains, devices):
     log_path = _log_path(args)
     _say('running {} ({} variant, ts {} s), log {}'.format(gains.path, gains.model_variant,
                                                          gains.ts_s, log_path))
-    code, _ = run_session(devices, gains, config, MonotonicClock(), log_path=log_path,
-                          duration_s=args.duration)
+    code, header = run_session(devices, gains, config, MonotonicClock(), log_path=log_path,
+                               duration_s=args.duration, cues=args.cues, telemetry=args.sender)
+    if args.sender is not None:
+        t = header['telemetry']
+        _say('telemetry: {} datagrams to {} (one every {} ticks), {} not sent{}'.format(
+            t['sent'], t['target'], t['every_ticks'], t['errors'],
+            ': ' + t['first_error'] if t['first_error'] else ''))
     return code
 
 

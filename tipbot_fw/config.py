@@ -13,6 +13,8 @@ Every field is validated; errors name the file and the dotted field path. Fields
                                                from it; th2, th3 are the joint encoders' zeros)
   limits.th1_rad, limits.th2_rad, limits.th3_rad   |angle| beyond -> motors stopped in that tick
   limits.min_battery_v                         refuse to start below this battery voltage
+  limits.warn_battery_v                        warn (words, light, tone) when a reading while
+                                               balancing is below this voltage
   limits.max_consecutive_overruns              this many late ticks in a row -> safe stop
   filters.encoder_rate_cutoff_hz               low-pass of the differentiated encoder positions
   filters.gyro_rate_cutoff_hz                  low-pass of the gyro rate (th1_dot)
@@ -79,6 +81,7 @@ SPEC = {
     'limits.th2_rad': _number(0, 3.2),
     'limits.th3_rad': _number(0, 3.2),
     'limits.min_battery_v': _number(0, 10, lo_open=False),
+    'limits.warn_battery_v': _number(0, 10, lo_open=False),
     'limits.max_consecutive_overruns': _number(1, 1000, lo_open=False, integer=True),
     'filters.encoder_rate_cutoff_hz': _number(0, 1000),
     'filters.gyro_rate_cutoff_hz': _number(0, 1000),

@@ -3,7 +3,8 @@
 Tick pipeline: read raw -> Core (signal chain, detector, control, saturation, duty, log row) ->
 write duties -> the row's time columns. Housekeeping (the battery, about once per second) runs in the slack AFTER the
 tick's writes, so a control tick does exactly one read_raw (5 sysfs reads) and one
-write_duties (at most 4 writes).
+write_duties (at most 4 writes). So does the side task (tipbot_fw.slack: lights, tones,
+telemetry), in the tick it asks for.
 
 Timing: tick k is released at t0 + k * period, the deadline advanced by exactly one period each
 tick (no drift). A tick whose work ends after the next release is an overrun: the next tick
@@ -65,11 +66,12 @@ class ControlLoop(object):
 
     battery_v: the voltage read before start (re-read every battery_period_s); duration_s:
     stop after that many periods' worth of ticks (None: run until stopped); realtime_priority:
-    SCHED_FIFO priority to ask for during the run (0: don't).
+    SCHED_FIFO priority to ask for during the run (0: don't); side: a side task (tipbot_fw.slack)
+    or None, settable until run().
     """
 
     def __init__(self, devices, core, clock, log, period_s, battery_v, battery_period_s=1.0,
-                 max_consecutive_overruns=5, duration_s=None, realtime_priority=0):
+                 max_consecutive_overruns=5, duration_s=None, realtime_priority=0, side=None):
         self.devices = devices
         self.core = core
         self.clock = clock
@@ -80,6 +82,7 @@ class ControlLoop(object):
         self.max_consecutive_overruns = max_consecutive_overruns
         self.n_ticks = None if duration_s is None else max(1, int(round(duration_s / period_s)))
         self.realtime_priority = realtime_priority
+        self.side = side
         self.stats = LoopStats()
 
     def run(self):
@@ -123,6 +126,8 @@ class ControlLoop(object):
         n_ticks = self.n_ticks
         battery_every = self.battery_every
         max_overruns = self.max_consecutive_overruns
+        side = self.side
+        side_due = 1 if side is not None else 1 << 30   # never reached: a small int compares fast
         stats.battery_v = self.battery_v
         core.set_battery(self.battery_v)
         consecutive = 0
@@ -160,6 +165,8 @@ class ControlLoop(object):
                     stats.battery_v = bv
                     if bv != core.battery_v:
                         core.set_battery(bv)
+                if k >= side_due:
+                    side_due = side(k)
                 release += period
                 late = now() - release
                 if late > 0.0:

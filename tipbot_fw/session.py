@@ -9,7 +9,7 @@ import time
 import numpy as np
 
 import tipbot_fw
-from tipbot_fw import logfile
+from tipbot_fw import logfile, slack
 from tipbot_fw.calibration import calibrate_gyro
 from tipbot_fw.config import motor_polarity
 from tipbot_fw.core import Core
@@ -39,13 +39,14 @@ def base_header(gains, config, duration_s):
 
 
 def run_session(devices, gains, config, clock, log_path=None, duration_s=None,
-                realtime_priority=None, say=say, cues=None):
+                realtime_priority=None, say=say, cues=None, telemetry=None):
     """Balance until duration_s (None: until stopped). -> (exit code, log header dict).
 
     Never raises; devices.stop_all() is called on every exit (tipbot_fw.safety.run_guarded).
     The log (if log_path) is written on every exit too, with the rows recorded so far.
-    ``cues`` (tipbot_fw.cues.OwnerCues by default) tells the owner to hold the robot, then
-    to let go.
+    ``cues`` (tipbot_fw.cues.OwnerCues by default) tells the owner to hold the robot, to let
+    go, that it balances and why it stopped; ``telemetry`` (a tipbot_fw.telemetry.TelemetrySender
+    or None) sends the ticks' rows. Both work in the loop's slack (tipbot_fw.slack).
     """
     cues = OwnerCues() if cues is None else cues
     if realtime_priority is None:
@@ -75,6 +76,9 @@ def run_session(devices, gains, config, clock, log_path=None, duration_s=None,
                                   max_consecutive_overruns=lim['max_consecutive_overruns'],
                                   duration_s=duration_s, realtime_priority=realtime_priority)
         cues.let_go()
+        run['loop'].side = slack.combine(   # after let_go: the rest of its melody plays in the loop
+            cues.in_loop(run['loop'], lim['warn_battery_v']),
+            telemetry.attach(log, run['loop'].stats, motor_polarity(config)) if telemetry else None)
         run['loop'].run()
 
     def finish(reason, code, msg):
@@ -88,6 +92,8 @@ def run_session(devices, gains, config, clock, log_path=None, duration_s=None,
             header['x_tilde_0'] = core.x0
         if 'loop' in run:
             header['loop'] = run['loop'].stats.as_dict()
+        if telemetry is not None:
+            header['telemetry'] = telemetry.summary()
         header['first_tick'] = log.first_tick()
         header['ticks'] = log.count
         if log_path:
@@ -98,6 +104,7 @@ def run_session(devices, gains, config, clock, log_path=None, duration_s=None,
                 if code == EXIT_OK:
                     code = header['exit_code'] = EXIT_ERROR
         say('stopped: {} (exit {}, {} ticks)'.format(msg, code, log.count))
+        cues.stopped(reason, code)    # after the log: its light and tone take up to a second
         return code, header
 
     return run_guarded(body, devices.stop_all, finish, say)
