@@ -22,6 +22,8 @@ COMMANDS = {
     "bench-sim": ("hostsim.studies.sim_bench", "simulation speed: real-time factor, Monte Carlo throughput"),
     "replay": ("hostsim.logs.replay", "replay a robot log on the host (make replay)"),
     "identify": ("hostsim.logs.identify", "identify motor parameters from identify logs"),
+    "watch": ("hostsim.logs.watch", "live telemetry from the robot: scrolling plots, recording (make watch)"),
+    "export": ("hostsim.logs.export", "a robot log as CSV for spreadsheets and notebooks"),
 }
 
 

@@ -1,4 +1,5 @@
-"""Robot logs on the host: replay of balance runs (replay) and motor identification (identify)."""
+"""Robot logs on the host: replay of balance runs (replay), motor identification (identify),
+export to CSV (export) and live telemetry (watch)."""
 import os
 
 from tipbot_fw import logfile
