@@ -46,8 +46,8 @@ REPLAY_ARGS ?=
 WATCH_PORT ?= 5005
 RECORD   ?=
 SNAPSHOT ?=
-# make bench TELEMETRY_EVERY=10: the decimation of the telemetry bench
-TELEMETRY_EVERY ?= 10
+# make bench TELEMETRY_EVERY=20: the decimation of the telemetry bench (the firmware's default)
+TELEMETRY_EVERY ?= 20
 
 .DEFAULT_GOAL := help
 .PHONY: help venv test gains paper-check sim replay bench brick stage deploy run logs watch sim-brick \

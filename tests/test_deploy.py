@@ -402,7 +402,7 @@ def test_make_watch_records_the_telemetry_of_a_run_on_the_brick(brick, tmp_path)
     _, rows = logfile.read_log(sorted(log)[-1])
     with open(record) as f:
         got = list(csv.DictReader(f))
-    assert len(got) == 40 and [int(r["tick"]) for r in got] == list(range(0, 400, 10))
+    assert len(got) == 20 and [int(r["tick"]) for r in got] == list(range(0, 400, 20))   # the default: every 20
     for r in got:
         row = rows[int(r["tick"])]
         assert [float(r[n]) for n in ("time_s", "y_th1_rad", "y_d_r_m", "u_l_V", "w_r_V", "battery_v")] == \

@@ -90,3 +90,15 @@ def test_a_busy_port_or_a_bad_recording_gets_one_line(tmp_path, capsys):
     bad.write_text('a,b\n1,2\n')
     assert watch.main(['--from', str(bad), '--no-window']) == 2
     assert 'not a recording of hostsim watch' in capsys.readouterr().err
+
+
+def test_the_readme_screenshot_is_what_watch_draws_of_its_recording(tmp_path):
+    # docs/watch.png: a loopback run (fake robot, 1 V on the wheels from 5 to 10 s, a push at
+    # 12 s) recorded by watch and drawn from the recording, as README says
+    import matplotlib.image
+    again = str(tmp_path / 'watch.png')
+    recording = os.path.join(REPO, 'docs', 'watch-recording.csv')
+    assert watch.main(['--from', recording, '--window', '15', '--snapshot', again, '--no-window']) == 0
+    a = matplotlib.image.imread(os.path.join(REPO, 'docs', 'watch.png'))
+    b = matplotlib.image.imread(again)
+    assert a.shape == b.shape and np.abs(a - b).mean() < 0.002

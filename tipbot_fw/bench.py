@@ -34,7 +34,7 @@ from tipbot_fw.devices import MemoryDevices
 from tipbot_fw.gains import ACTUATED_INPUTS, N_INPUTS, UNUSED_INPUT, gains_from_dict, load_gains
 from tipbot_fw.loop import ControlLoop
 from tipbot_fw.safety import SafetyStop
-from tipbot_fw.telemetry import TelemetrySender
+from tipbot_fw.telemetry import SIZE, TelemetrySender
 
 
 def synthetic_gains_doc(A, B, K, ts_s, Q=None, R=None, u_max_v=7.6, detector_pole=0.2,
@@ -254,7 +254,7 @@ def main(argv=None):
     if sender is not None:
         ts_s = gains.ts_s if gains else 0.005
         sys.stdout.write('telemetry: {} datagrams of {} bytes in {} ticks (one every {}: {:.0f} per second at '
-                         '{:g} ms), {} not sent\n'.format(sender.sent, len(sender.out), n_ticks + 1, every,
+                         '{:g} ms), {} not sent\n'.format(sender.sent, SIZE, n_ticks + 1, every,
                                                          1.0 / (every * ts_s), ts_s * 1e3, sender.errors))
         sender.close()
         sink.close()

@@ -4,7 +4,8 @@ Tick pipeline: read raw -> Core (signal chain, detector, control, saturation, du
 write duties -> the row's time columns. Housekeeping (the battery, about once per second) runs in the slack AFTER the
 tick's writes, so a control tick does exactly one read_raw (5 sysfs reads) and one
 write_duties (at most 4 writes). So does the side task (tipbot_fw.slack: lights, tones,
-telemetry), in the tick it asks for.
+telemetry), in the tick it asks for. Between two ticks with work in the slack a tick pays one
+integer comparison for all of it (the battery's period included).
 
 Timing: tick k is released at t0 + k * period, the deadline advanced by exactly one period each
 tick (no drift). A tick whose work ends after the next release is an overrun: the next tick
@@ -22,6 +23,12 @@ from tipbot_fw.core import FALL
 from tipbot_fw.safety import DeviceFailure, FallDetected, JointLimit, OverrunLimit
 
 OVERRUN = logfile.FLAG_BITS['overrun']
+
+
+def _NEVER(k):
+    """The side task of a loop without one: due again 2**29 ticks later (31 days at 5 ms), a
+    tick number of one CPython digit (below 2**30), which compares fastest."""
+    return k + (1 << 29)
 
 
 class LoopStats(object):
@@ -127,7 +134,10 @@ class ControlLoop(object):
         battery_every = self.battery_every
         max_overruns = self.max_consecutive_overruns
         side = self.side
-        side_due = 1 if side is not None else 1 << 30   # never reached: a small int compares fast
+        side_due = 1
+        if side is None:
+            side, side_due = _NEVER, _NEVER(0)
+        due = min(side_due, battery_every)    # the next tick with work in the slack
         stats.battery_v = self.battery_v
         core.set_battery(self.battery_v)
         consecutive = 0
@@ -156,17 +166,21 @@ class ControlLoop(object):
                 k += 1
                 if k == n_ticks:
                     return
-                if k % battery_every == 0:
-                    try:
-                        bv = dev.read_battery_v()
-                    except (OSError, ValueError) as e:
-                        raise DeviceFailure('battery read failed after tick {}: {}'.format(k - 1, e))
-                    stats.battery_reads += 1
-                    stats.battery_v = bv
-                    if bv != core.battery_v:
-                        core.set_battery(bv)
-                if k >= side_due:
-                    side_due = side(k)
+                if k >= due:        # the slack's work: one comparison a tick until it is due
+                    if k % battery_every == 0:
+                        try:
+                            bv = dev.read_battery_v()
+                        except (OSError, ValueError) as e:
+                            raise DeviceFailure('battery read failed after tick {}: {}'.format(k - 1, e))
+                        stats.battery_reads += 1
+                        stats.battery_v = bv
+                        if bv != core.battery_v:
+                            core.set_battery(bv)
+                    if k >= side_due:
+                        side_due = side(k)
+                    due = (k // battery_every + 1) * battery_every
+                    if side_due < due:
+                        due = side_due
                 release += period
                 late = now() - release
                 if late > 0.0:

@@ -27,19 +27,21 @@ from tipbot_fw import logfile
 
 MAGIC = b'TBTM'
 VERSION = 1
-HEADER = struct.Struct('<4sHHIIIId')
-_COUNTERS = struct.Struct('<IIII')     # seq, tick, overruns, send errors: at byte 8 of HEADER
+# HEADER: magic, version, polarity bits, then what changes from datagram to datagram (seq,
+# tick, overruns, send errors, t0), packed with the row's values in one call
+_VARYING = 'IIIId'
+_VARYING_AT = 8
+HEADER = struct.Struct('<4sHH' + _VARYING)
 ROW_FIELDS = ('t_start', 't_written', 'battery_v', 'gyro_bias', 'flags',
               'duty_r', 'duty_l', 'duty_2', 'duty_3', 'y_d_r', 'y_d_l', 'y_th1', 'y_th2', 'y_th3',
               'w_r', 'w_l', 'w_th2', 'w_th3')
 BODY = struct.Struct('<{}d'.format(len(ROW_FIELDS)))
 SIZE = HEADER.size + BODY.size
-_BODY_AT = HEADER.size
 _ROW_BYTES = logfile.MEM_ROW_BYTES
-_pack_counters = _COUNTERS.pack_into
-# Default decimation: a datagram every 10 ticks, 20 per second at 5 ms (docs/telemetry.md
-# has its cost per tick).
-DEFAULT_EVERY = 10
+# Default decimation: a datagram every 20 ticks, 10 per second at 5 ms. A datagram costs about
+# 9,000 ARMv5 instructions, 450 a tick at this rate: today's tick (99,300 of its 100,000) has
+# room for no more (docs/telemetry.md).
+DEFAULT_EVERY = 20
 # Decoded inputs: u = polarity * duty * battery_v / 100 (tipbot_fw.logfile.to_file_layout)
 _INPUTS = (('u_r', 'duty_r'), ('u_l', 'duty_l'), ('u_th2', 'duty_2'), ('u_th3', 'duty_3'))
 
@@ -48,10 +50,10 @@ class TelemetryError(ValueError):
     """A bad --telemetry target or a datagram that is not a tipbot telemetry datagram."""
 
 
-def row_copier(names, row_names=logfile.MEM_NAMES):
+def row_copier(names, row_names=logfile.MEM_NAMES, head=''):
     """-> (unpack, pack): unpack(row bytes, byte offset) picks the row's columns `names` (8
-    bytes each) as byte strings, pack(datagram, offset, *those) puts them there in the order of
-    `names`. Columns next to each other in both travel as one string, so today's row takes three
+    bytes each) as byte strings, pack(datagram, offset, *head values, *those) puts the values of
+    the struct format `head` and then those, in the order of `names`. Columns next to each other in both travel as one string, so today's row takes three
     (two C calls and no float objects: on the brick's soft-float ARM, 18 floats unpacked and
     packed again cost three times as much)."""
     missing = [n for n in names if n not in row_names]
@@ -71,7 +73,7 @@ def row_copier(names, row_names=logfile.MEM_NAMES):
         fmt += ('{}x'.format(8 * (start - at)) if start > at else '') + '{}s'.format(8 * n)
         at = start + n
     unpack = struct.Struct(fmt).unpack_from
-    pack = struct.Struct('<' + ''.join('{}s'.format(8 * n) for _, n in runs)).pack_into
+    pack = struct.Struct('<' + head + ''.join('{}s'.format(8 * n) for _, n in runs)).pack_into
     if in_row != list(range(len(runs))):
         order = operator.itemgetter(*[in_row.index(r) for r in range(len(runs))])
         return (lambda data, offset: order(unpack(data, offset))), pack
@@ -110,34 +112,41 @@ class TelemetrySender(object):
             raise TelemetryError('--telemetry {}: {}'.format(target, e))
         self.target = target
         self.every = max(1, int(every))
-        self.sent = self.errors = 0
+        self.count = [0, 0]     # datagrams sent, not sent
         self.first_error = None
 
     def attach(self, log, stats, polarity):
         """The side task sending tick k - 1's row of `log` (a tipbot_fw.logfile.LogBuffer that
-        the loop fills; stats: its LoopStats) when called with k."""
-        self.log, self.stats = log, stats
-        self.pick, self.put = row_copier(ROW_FIELDS)
-        self.out = bytearray(SIZE)
-        self.polarity = polarity_bits(polarity)
-        return self.send_tick
+        the loop fills; stats: its LoopStats) when called with k. A closure over locals: on the
+        brick each attribute lookup of a method would cost as much as a C call here."""
+        pick, put = row_copier(ROW_FIELDS, head=_VARYING)
+        out = bytearray(SIZE)
+        HEADER.pack_into(out, 0, MAGIC, VERSION, polarity_bits(polarity), 0, 0, 0, 0, 0.0)
+        send, data, capacity, every = self.sock.send, log.data, log.capacity, self.every
+        count = self.count = [0, 0]     # sent, not sent
 
-    def send_tick(self, k):
-        out = self.out
-        seq = self.sent + self.errors
-        if not seq:     # the first: the loop has set log.t0 by now
-            HEADER.pack_into(out, 0, MAGIC, VERSION, self.polarity, 0, 0, 0, 0, self.log.t0)
-        log = self.log
-        self.put(out, _BODY_AT, *self.pick(log.data, ((k - 1) % log.capacity) * _ROW_BYTES))
-        _pack_counters(out, 8, seq, k - 1, self.stats.overruns, self.errors)
-        try:
-            self.sock.send(out)
-            self.sent += 1
-        except OSError as e:     # nobody listening, no route, buffer full: counted, never raised
-            self.errors += 1
-            if self.first_error is None:
-                self.first_error = str(e)
-        return k + self.every
+        def send_tick(k):
+            sent, errors = count
+            # the loop has set log.t0 before the first tick
+            put(out, _VARYING_AT, sent + errors, k - 1, stats.overruns, errors, log.t0,
+                *pick(data, ((k - 1) % capacity) * _ROW_BYTES))
+            try:
+                send(out)
+                count[0] = sent + 1
+            except OSError as e:     # nobody listening, no route, buffer full: counted, never raised
+                count[1] = errors + 1
+                if self.first_error is None:
+                    self.first_error = str(e)
+            return k + every
+        return send_tick
+
+    @property
+    def sent(self):
+        return self.count[0]
+
+    @property
+    def errors(self):
+        return self.count[1]
 
     def summary(self):
         """For the log header and the owner."""
