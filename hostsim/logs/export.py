@@ -43,7 +43,7 @@ def csv_header(columns):
 def write_csv(path, columns, rows):
     """rows: an iterable of sequences of numbers; integral floats are written as integers."""
     with open(path, "w", newline="") as f:
-        w = csv.writer(f)
+        w = csv.writer(f, lineterminator="\n")
         w.writerow(csv_header(columns))
         for row in rows:
             w.writerow([format_value(v) for v in row])

@@ -100,7 +100,7 @@ class Recorder(object):
             self.f = open(path, "w", newline="")
         except OSError as e:
             raise WatchError("--record %s: %s" % (path, e.strerror or e))
-        self.w = csv.writer(self.f)
+        self.w = csv.writer(self.f, lineterminator="\n")
         self.w.writerow(csv_header(RECORD_COLUMNS))
 
     def write(self, v):
