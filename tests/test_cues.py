@@ -94,6 +94,14 @@ def test_each_state_shows_its_lights_and_plays_its_melody_on_the_fake_ev3(ev3, s
     brick.close()
 
 
+def test_the_lights_trigger_is_turned_off_so_that_a_color_stays(ev3):
+    brick = quiet_brick(ev3)
+    for _, _, name in LEDS:
+        with open(os.path.join(ev3.sysfs_root, 'leds', name, 'trigger')) as f:
+            assert f.readline().strip() == 'none'
+    brick.close()
+
+
 def test_a_brick_without_lights_or_speaker_is_told_and_left_alone(tmp_path):
     brick = BrickSignals(str(tmp_path / 'nothing'), sleep=lambda s: None)
     assert len(brick.problems) == 5 and all('cannot open' in p for p in brick.problems)
@@ -190,24 +198,12 @@ def run(tmp_path, ev3, dev, clock=None, duration_s=0.3, config=None):
     return code, header, words.lines
 
 
-class Ticks(object):
-    """on_sleep: counts the loop's ticks and runs action(n)."""
-
-    def __init__(self, dev, action):
-        self.dev, self.action, self.n = dev, action, 0
-
-    def __call__(self, t_from, t_to):
-        if self.dev.write_calls:
-            self.n += 1
-            self.action(self.n)
-
-
 def _raise(e):
     raise e
 
 
 def _stop(kind, dev, clock):
-    """Make a run stop for `kind`: -> the battery_v and on_sleep action to use."""
+    """The action of a TickCounter that makes a run on dev and clock stop for `kind`."""
     if kind == 'fall':
         return lambda n: setattr(dev, 'gyro', (0, 100))
     if kind == 'joint_limit':
@@ -235,7 +231,7 @@ def test_each_stop_shows_its_lights_plays_its_melody_and_says_why(tmp_path, ev3,
         reads = iter(range(10 ** 6))
         dev.source = lambda: ((0, 0, 0, 0), (0, 9 if next(reads) == settle + 3 else 0))
     clock = VirtualClock()
-    clock.on_sleep = Ticks(dev, _stop(reason, dev, clock))
+    clock.on_sleep = S.TickCounter(dev, _stop(reason, dev, clock))
     got, header, words = run(tmp_path, ev3, dev, clock, duration_s=0.8)
     assert (got, header['stop_reason']) == (code, reason)
     state = stop_state(reason)

@@ -33,16 +33,7 @@ def assert_stopped_and_logged(dev, log_path, reason, code, header):
     return h, rows
 
 
-class TickCounter(object):
-    """on_sleep hook: counts loop ticks (sleeps after the first write) and runs `action(n)`."""
-
-    def __init__(self, dev, action):
-        self.dev, self.action, self.n = dev, action, 0
-
-    def __call__(self, t_from, t_to):
-        if self.dev.write_calls:
-            self.n += 1
-            self.action(self.n)
+TickCounter = S.TickCounter
 
 
 def test_completed_run(tmp_path):

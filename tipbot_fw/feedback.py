@@ -114,7 +114,10 @@ class BrickSignals(object):
         self.shown = []
         for light, color, name in LEDS:
             path = os.path.join(sysfs_root, 'leds', name)
-            self.led_fds.append(self._open(os.path.join(path, 'brightness'), os.O_WRONLY, 'light'))
+            fd = self._open(os.path.join(path, 'brightness'), os.O_WRONLY, 'light')
+            if fd >= 0:
+                self._no_trigger(path)
+            self.led_fds.append(fd)
             self.on.append(self._max_brightness(path))
             self.shown.append(None)     # unknown until written
         self.sound_path = sound_path or sound_device(sysfs_root)
@@ -127,6 +130,18 @@ class BrickSignals(object):
         except OSError as e:
             self.problems.append('{}: cannot open {}: {}'.format(what, path, e.strerror or e))
             return -1
+
+    def _no_trigger(self, path):
+        """A kernel trigger (brickman's heartbeat or timer) would keep blinking over what is
+        written: turn it off (a write of 0 to brightness would too, but not one of 255)."""
+        try:
+            fd = os.open(os.path.join(path, 'trigger'), os.O_WRONLY)
+            try:
+                os.write(fd, b'none\n')
+            finally:
+                os.close(fd)
+        except OSError as e:
+            self.problems.append('light: cannot turn off the trigger of {}: {}'.format(path, e.strerror or e))
 
     @staticmethod
     def _max_brightness(path):
