@@ -28,7 +28,8 @@ COMMANDS = {
 
 
 def usage():
-    lines = ["usage: python -m hostsim VERB [ARGS...]   (python -m hostsim VERB --help for its options)",
+    lines = ["usage: python -m hostsim VERB [ARGS...]   (python -m hostsim VERB --help for its options;",
+             "       tipbot-host VERB ... is the same, once pip install -e . (make venv) has put it on PATH)",
              "", "verbs:"]
     lines += ["  %-12s %s" % (name, text) for name, (_, text) in COMMANDS.items()]
     return "\n".join(lines)

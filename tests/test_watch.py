@@ -15,8 +15,8 @@ from tipbot_fw.logfile import col, read_log
 # A firmware run in another process: the real loop and session on in-memory devices whose
 # readings move, on a virtual clock, sending telemetry to argv[1]; exit status 3 at the end.
 RUN = '''
-import sys
-sys.path.insert(0, {tests!r})
+import os, sys
+sys.path[:0] = [{tests!r}, os.path.dirname({tests!r})]
 import fw_support as S
 from tipbot_fw.clock import VirtualClock
 from tipbot_fw.cues import OwnerCues
@@ -102,3 +102,25 @@ def test_the_readme_screenshot_is_what_watch_draws_of_its_recording(tmp_path):
     a = matplotlib.image.imread(os.path.join(REPO, 'docs', 'watch.png'))
     b = matplotlib.image.imread(again)
     assert a.shape == b.shape and np.abs(a - b).mean() < 0.002
+
+
+def test_the_live_window_follows_the_run(tmp_path, monkeypatch):
+    # the window's code path (a redraw every 0.1 s while the command runs, then the window
+    # stays until closed) with Agg standing in for a display
+    import matplotlib
+    matplotlib.use('Agg', force=True)
+    import matplotlib.pyplot as plt
+    monkeypatch.setattr(watch, 'pyplot', lambda window: (plt, True))
+    updates = []
+    update = watch.View.update
+    monkeypatch.setattr(watch.View, 'update', lambda self, tel, note='': updates.append(tel.received) or
+                        update(self, tel, note))
+    port = free_udp_port()
+    script = tmp_path / 'run.py'
+    script.write_text(RUN.format(tests=os.path.join(REPO, 'tests')))
+    status, tel = watch.watch(port, snapshot=str(tmp_path / 'v.png'), command=[
+        sys.executable, str(script), '127.0.0.1:%d' % port, str(tmp_path / 'run.log')])
+    assert status == 3 and tel.received == 40 and tel.runs == 1
+    assert len(updates) > 5 and updates[-1] == 40
+    assert os.path.getsize(str(tmp_path / 'v.png')) > 20000
+    plt.close('all')
