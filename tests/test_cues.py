@@ -291,3 +291,15 @@ def test_missing_devices_are_shown_too(tmp_path, quick_config, capsys):
         assert 'tipbot: NOT STARTED: devices missing (exit 3)' in capsys.readouterr().out
     finally:
         ev3.close()
+
+
+def test_a_failing_cue_cannot_change_how_a_run_ends(tmp_path):
+    class Broken(OwnerCues):
+        def stopped(self, reason, code):
+            raise RuntimeError('no screen')
+
+    said = []
+    code, header = run_session(MemoryDevices(), S.load(), S.fw_config(), VirtualClock(), log_path=str(tmp_path / 'r.log'),
+                               duration_s=0.1, say=said.append, cues=Broken(streams=()))
+    assert code == 0 and header['stop_reason'] == 'completed' and os.path.exists(str(tmp_path / 'r.log'))
+    assert said[-1] == "could not show why it stopped: RuntimeError('no screen')"

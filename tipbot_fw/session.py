@@ -104,7 +104,10 @@ def run_session(devices, gains, config, clock, log_path=None, duration_s=None,
                 if code == EXIT_OK:
                     code = header['exit_code'] = EXIT_ERROR
         say('stopped: {} (exit {}, {} ticks)'.format(msg, code, log.count))
-        cues.stopped(reason, code)    # after the log: its light and tone take up to a second
+        try:
+            cues.stopped(reason, code)    # after the log: its light and tone take up to a second
+        except Exception as e:            # the motors are stopped, the log written: report, never raise
+            say('could not show why it stopped: {!r}'.format(e))
         return code, header
 
     return run_guarded(body, devices.stop_all, finish, say)

@@ -200,8 +200,7 @@ def pyplot(window):
 def listen(port, bind="0.0.0.0"):
     try:
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        sock.bind((bind, port))
+        sock.bind((bind, port))     # no SO_REUSEADDR: a second watch on the port is an error, not a thief
     except OSError as e:
         raise WatchError("cannot listen on UDP %s:%d: %s" % (bind, port, e.strerror or e))
     sock.setblocking(False)
@@ -262,12 +261,15 @@ def watch(port, record=None, duration_s=None, window_s=DEFAULT_WINDOW_S, snapsho
                 view.update(tel)
                 plt.pause(REDRAW_S)
     except KeyboardInterrupt:
-        if child is not None:
-            status = child.wait()
+        pass
     finally:
         if recorder:
             recorder.close()
         sock.close()
+    if child is not None and ended is None:
+        if child.poll() is None:
+            print("watch: waiting for %s to end" % " ".join(command), flush=True)
+        status = child.wait()
     if view is not None:
         view.update(tel)
         if snapshot:
@@ -327,5 +329,8 @@ def main(argv=None):
     except WatchError as e:
         sys.stderr.write("watch: error: %s\n" % e)
         return 2
+    except KeyboardInterrupt:
+        sys.stderr.write("watch: interrupted\n")
+        return 130
     print(summary(tel, a.record))
     return status
