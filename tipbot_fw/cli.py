@@ -1,14 +1,19 @@
-"""Command line: python3 -m tipbot_fw {run,check,calibrate,bench,identify} ... (exit codes: tipbot_fw.safety)."""
+"""Command line: python3 -m tipbot_fw {run,check,calibrate,bench,identify} ... (exit codes: tipbot_fw.safety).
+
+Order of a run: the signal handlers (before anything else), the supervisor's page if there is
+one (tipbot_fw.supervisor), the configuration and gains, the log (path checked, room reserved),
+then the devices, then the session.
+"""
 import argparse
 
-from tipbot_fw import identify, logfile, safety
+from tipbot_fw import heartbeat, identify, logfile, safety
 from tipbot_fw.bench import brick_bench
 from tipbot_fw.calibration import calibrate_gyro
 from tipbot_fw.clock import MonotonicClock
-from tipbot_fw.config import ConfigError, load_config
+from tipbot_fw.config import ConfigError, check_config_against_gains, load_config
 from tipbot_fw.console import say as _say
 from tipbot_fw.gains import GainsError, load_gains
-from tipbot_fw.session import log_refused_start, run_session
+from tipbot_fw.session import log_refused_start, open_log, run_session
 
 CHECK_PERIOD_S = 0.005   # gyro sampling period for check/calibrate (no gains file involved)
 
@@ -69,26 +74,64 @@ def _open_devices(config, sysfs_root):
         return None, why
 
 
-def main(argv=None):
+def main(argv=None, guard=None, environ=None):
+    """-> exit status. ``guard``: the SignalGuard tipbot_fw.__main__ installed first thing (else
+    one is installed here); ``environ``: where to look for the supervisor (os.environ)."""
+    own = guard is None
+    guard = safety.SignalGuard().install() if own else guard
+    try:
+        hbt, problem = heartbeat.attach(environ)
+        guard.heartbeat = hbt
+        guard.check_pending()
+        return _main(argv, guard, hbt, problem)
+    except (KeyboardInterrupt, safety.Terminated) as e:
+        _, code, msg = safety.classify(e)
+        _say('stopped before any device was touched: {} (exit {}); no log: nothing ran'.format(msg, code))
+        return code
+    finally:
+        if own:
+            guard.restore()
+
+
+def _main(argv, guard, hbt, supervisor_problem):
     args = _parser().parse_args(argv)
     if args.command is None:
         _parser().print_help()
+        return safety.EXIT_INVALID
+    if supervisor_problem:
+        _say('refused to start: {}; no log: nothing ran'.format(supervisor_problem))
         return safety.EXIT_INVALID
     if args.command == 'identify':   # one motor, not the robot's full set of devices
         return identify.main_identify(args, say=_say)
     try:
         config = load_config(args.config)
         gains = load_gains(args.gains) if getattr(args, 'gains', None) else None
+        if gains is not None:
+            check_config_against_gains(config, gains, args.config or 'the default configuration')
     except (ConfigError, GainsError) as e:
         _say('refused to start: {}'.format(e))
         return safety.EXIT_INVALID
-    devices, why = _open_devices(config, args.sysfs_root)
+    log = None
+    if args.command == 'run':
+        try:
+            log = open_log(_log_path(args), config, gains.ts_s, args.duration)
+        except (OSError, logfile.LogWriteError) as e:
+            _say('refused to start: {}; nothing was started'.format(e.strerror or e))
+            return safety.EXIT_INVALID
+    try:
+        devices, why = _open_devices(config, args.sysfs_root)
+    except (KeyboardInterrupt, safety.Terminated) as e:   # the device layer stopped what it had set up
+        if log is not None:
+            log_refused_start(log, gains, config, args.duration, e, say=_say)
+        return safety.classify(e)[1]
     if devices is None:
-        if args.command == 'run':     # a run's every exit but a refused command line writes a log
-            log_refused_start(_log_path(args), gains, config, args.duration,
+        if log is not None:     # every exit of a run writes a log, once its path is good
+            log_refused_start(log, gains, config, args.duration,
                               safety.DevicesMissing(' '.join(why.split())), say=_say)
         return safety.EXIT_DEVICES
     try:
+        if args.command == 'run':
+            return _run(args, config, gains, devices, log, hbt, guard)
         return COMMANDS[args.command](args, config, gains, devices)
     finally:
         devices.close()
@@ -100,12 +143,13 @@ def _log_path(args):
     return args.log
 
 
-def _run(args, config, gains, devices):
-    log_path = _log_path(args)
-    _say('running {} ({} variant, ts {} s), log {}'.format(gains.path, gains.model_variant,
-                                                         gains.ts_s, log_path))
-    code, _ = run_session(devices, gains, config, MonotonicClock(), log_path=log_path,
-                          duration_s=args.duration)
+def _run(args, config, gains, devices, log, hbt, guard):
+    _say('running {} ({} variant, ts {} s), log {}{}'.format(
+        gains.path, gains.model_variant, gains.ts_s, log.path,
+        '' if hbt.supervised else ' (no supervisor: start with the launcher ev3/tipbot, or python3 -m '
+        'tipbot_fw.supervisor -- run ..., to have the motors stopped whatever ends this process)'))
+    code, _ = run_session(devices, gains, config, MonotonicClock(), duration_s=args.duration, log=log,
+                          heartbeat=hbt, guard=guard)
     return code
 
 

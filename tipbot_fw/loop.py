@@ -11,6 +11,15 @@ starts at once; releases missed entirely are skipped (whole periods, the grid is
 counted. limits.max_consecutive_overruns overruns in a row stop the run. The signal chain and
 the detector always assume the nominal period (the model is discrete at ts_s).
 
+Each tick also stores its index in the heartbeat page the supervisor watches (one store, no
+system call: tipbot_fw.heartbeat), and compares the readings with what the hardware can report
+(tipbot_fw.plausibility: a gyro rate beyond +-440 deg/s, an encoder jump beyond the motor's
+reach at the nominal period; only when that cheap test fails is the exact one, with the time
+since the previous read, made). Outside the ticks: the battery (about once a second: its
+plausibility, and whether the supervisor is still there), and the log's rows, written to the
+file in chunks (logfile.CHUNK_ROWS) in a tick's slack (at least FLUSH_SLACK_S before the next
+release, or at once when the ring in memory is about to be overwritten). No fsync in the loop.
+
 Motors are not stopped here: the caller (tipbot_fw.session) stops them in its finally clause.
 """
 import gc
@@ -18,7 +27,11 @@ import os
 
 from tipbot_fw import logfile
 from tipbot_fw.core import FALL
-from tipbot_fw.safety import DeviceFailure, FallDetected, JointLimit, OverrunLimit
+from tipbot_fw.heartbeat import NOT_SUPERVISED
+from tipbot_fw.plausibility import GYRO_MAX_DPS, EncoderBound, check_battery
+from tipbot_fw.safety import DeviceFailure, FallDetected, JointLimit, OverrunLimit, Terminated
+
+FLUSH_SLACK_S = 0.0015
 
 OVERRUN = logfile.FLAG_BITS['overrun']
 
@@ -65,11 +78,14 @@ class ControlLoop(object):
 
     battery_v: the voltage read before start (re-read every battery_period_s); duration_s:
     stop after that many periods' worth of ticks (None: run until stopped); realtime_priority:
-    SCHED_FIFO priority to ask for during the run (0: don't).
+    SCHED_FIFO priority to ask for during the run (0: don't); heartbeat: the supervisor's page
+    (tipbot_fw.heartbeat); encoder_bound: a plausibility.EncoderBound (None: only the gyro's
+    bound is checked).
     """
 
     def __init__(self, devices, core, clock, log, period_s, battery_v, battery_period_s=1.0,
-                 max_consecutive_overruns=5, duration_s=None, realtime_priority=0):
+                 max_consecutive_overruns=5, duration_s=None, realtime_priority=0, heartbeat=NOT_SUPERVISED,
+                 encoder_bound=None):
         self.devices = devices
         self.core = core
         self.clock = clock
@@ -80,6 +96,8 @@ class ControlLoop(object):
         self.max_consecutive_overruns = max_consecutive_overruns
         self.n_ticks = None if duration_s is None else max(1, int(round(duration_s / period_s)))
         self.realtime_priority = realtime_priority
+        self.heartbeat = heartbeat
+        self.encoder_bound = encoder_bound
         self.stats = LoopStats()
 
     def run(self):
@@ -123,12 +141,23 @@ class ControlLoop(object):
         n_ticks = self.n_ticks
         battery_every = self.battery_every
         max_overruns = self.max_consecutive_overruns
-        stats.battery_v = self.battery_v
+        hbt = self.heartbeat
+        beat = hbt.words if hbt.words is not None else [0] * 8   # the same store either way
+        bound = self.encoder_bound or EncoderBound(None, None, period)
+        j_tick = bound.per_tick
+        j_max = float('inf')            # tick 0 has no previous reading
+        gyro_max = GYRO_MAX_DPS
+        pa = pb = pc = pd = 0
+        flush = log.flush
+        chunk = log.chunk_rows
+        next_flush = chunk
+        urgent = log.capacity - chunk
+        stats.battery_v = check_battery(self.battery_v)
         core.set_battery(self.battery_v)
         consecutive = 0
         step = core.start
         k = 0       # ticks whose row is stored
-        release = log.t0 = now()
+        release = log.t0 = t_prev = now()
         try:
             while True:
                 t = now()
@@ -136,9 +165,17 @@ class ControlLoop(object):
                     enc, gyro = read()
                 except (OSError, ValueError) as e:
                     raise DeviceFailure('read_raw failed at tick {}: {}'.format(k, e))
+                a, b, c, d = enc
+                if not (-gyro_max <= gyro[1] <= gyro_max and -j_max <= a - pa <= j_max and -j_max <= b - pb <= j_max
+                        and -j_max <= c - pc <= j_max and -j_max <= d - pd <= j_max):
+                    bound.check((pa, pb, pc, pd), enc, t - t_prev, gyro[1], k)
+                pa, pb, pc, pd = enc
+                t_prev = t
+                beat[0] = k
                 offset = (k % cap) * row_bytes
                 duties, stop = step(enc, gyro, buf, offset)
                 step = core.step
+                j_max = j_tick
                 if stop:
                     pack_times(buf, offset, t, now())
                     k += 1
@@ -156,10 +193,14 @@ class ControlLoop(object):
                         bv = dev.read_battery_v()
                     except (OSError, ValueError) as e:
                         raise DeviceFailure('battery read failed after tick {}: {}'.format(k - 1, e))
+                    check_battery(bv, stats.battery_v, 'after tick {}'.format(k - 1))
                     stats.battery_reads += 1
                     stats.battery_v = bv
                     if bv != core.battery_v:
                         core.set_battery(bv)
+                    if not hbt.supervisor_alive():
+                        raise Terminated('the supervisor (pid {}) is gone: the controller stopped the motors '
+                                         'itself'.format(hbt.supervisor_pid), 'supervisor_gone')
                 release += period
                 late = now() - release
                 if late > 0.0:
@@ -177,6 +218,9 @@ class ControlLoop(object):
                         stats.skipped_periods += missed
                 else:
                     consecutive = 0
+                if k >= next_flush and (release - now() > FLUSH_SLACK_S or k - log.flushed >= urgent):
+                    flush()
+                    next_flush = k + chunk
                 sleep_until(release)   # returns at once when late
         finally:
             log.count = stats.ticks = k
