@@ -185,8 +185,12 @@ def _parse_float(text):
     return v
 
 
+class _NotJson(_Huge):
+    """NaN, Infinity or -Infinity: Python's json reads them, JSON has no such numbers."""
+
+
 def _parse_constant(name):
-    raise JsonProblem('{} is not a number JSON allows'.format(name))
+    return _NotJson(name)
 
 
 def _pairs(pairs):
@@ -205,6 +209,8 @@ def _check_values(doc):
         path, v, depth = stack.pop()
         if depth > MAX_DEPTH:
             return path, 'is nested deeper than {} levels'.format(MAX_DEPTH)
+        if isinstance(v, _NotJson):
+            return path, 'is {}, not a finite number (JSON has none)'.format(v.text)
         if isinstance(v, _Huge):
             return path, 'is {}, beyond the range of a number'.format(v.text)
         if isinstance(v, dict):
@@ -230,7 +236,7 @@ def loads(data):
     except RecursionError:
         raise JsonProblem('is nested deeper than {} levels'.format(MAX_DEPTH))
     except (ValueError, TypeError, OverflowError, RuntimeError) as e:
-        raise JsonProblem('is not valid JSON: {}'.format(str(e).splitlines()[0] if str(e) else type(e).__name__))
+        raise JsonProblem('not valid JSON: {}'.format(str(e).splitlines()[0] if str(e) else type(e).__name__))
     bad = _check_values(doc)
     if bad:
         where, problem = bad

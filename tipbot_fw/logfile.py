@@ -137,9 +137,10 @@ class LogBuffer(object):
     def for_file(cls, writer, polarity, max_rows, chunk_rows=CHUNK_ROWS):
         return cls(chunk_rows * RING_CHUNKS, writer, polarity, max_rows, chunk_rows)
 
-    def flush(self):
-        """Write the rows stored and not yet written (outside the ticks). Never raises."""
-        end = self.count
+    def flush(self, end=None):
+        """Write the rows stored (``end`` of them: the loop's count during a run; else count) and
+        not yet written, outside the ticks. Never raises."""
+        end = self.count if end is None else end
         start = max(self.flushed, end - self.capacity)
         if self.writer is None or end <= start:
             return

@@ -219,7 +219,7 @@ class ControlLoop(object):
                 else:
                     consecutive = 0
                 if k >= next_flush and (release - now() > FLUSH_SLACK_S or k - log.flushed >= urgent):
-                    flush()
+                    flush(k)
                     next_flush = k + chunk
                 sleep_until(release)   # returns at once when late
         finally:

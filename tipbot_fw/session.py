@@ -79,6 +79,7 @@ def run_session(devices, gains, config, clock, log_path=None, duration_s=None,
     header = base_header(gains, config, duration_s)
     header['counts_per_rot'] = list(devices.counts_per_rot)
     header['supervised'] = heartbeat.supervised
+    header['first_tick'] = 0     # a file holds a run's rows from its first tick (logfile.LogBuffer)
     if log is None and log_path:
         try:
             log = open_log(log_path, config, gains.ts_s, duration_s)
