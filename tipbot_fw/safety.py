@@ -3,7 +3,8 @@
 Exit codes of `python3 -m tipbot_fw` (also in README/cli help):
   0   run reached --duration (or check/calibrate succeeded)
   1   unexpected error (a bug): motors stopped, log written, traceback printed
-  2   invalid command line, config or gains: refused to start, devices not opened, no log
+  2   invalid command line, config or gains, or a log path that cannot be written (or no room
+      for the log): refused to start, devices not opened, no log (the message says why)
   3   devices missing or with the wrong driver: refused to start, motors untouched, (run) a
       log of the header only, naming them
   4   refused to start: battery below limits.min_battery_v, the gyro moved during calibration,
