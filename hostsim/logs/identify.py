@@ -82,7 +82,9 @@ from hostsim.logs import read_log
 from hostsim.model.motors import DRIVER_MOTOR, ROLE_MOTOR, TABLE2, TABLE2_G
 from hostsim.model.params import DEFAULT_PARAMS_PATH, MOTOR_FIELDS, MOTOR_ROLES, load_params, parse_params
 from hostsim.paths import out_dir
+from tipbot_fw import fields
 from tipbot_fw import identify as fw_identify
+from tipbot_fw.plausibility import BATTERY_MAX_V, BATTERY_MIN_V
 
 DEFAULT_OUT = out_dir("identify")
 DEG = math.pi / 180.0
@@ -182,6 +184,15 @@ def count_events(log, phase):
     keep = (log.phase == phase) & (dc > 0)
     t, tp = log.t[keep], log.t_prev[keep]
     return 0.5 * (t + tp), c[keep] - 0.5 * (dc[keep] - 1.0), t - tp, dc[keep]
+
+
+def _fit(path, what, fun, x0, **kw):
+    """scipy's least_squares, with its refusals (residuals not finite, a start outside the
+    bounds) as IdentifyError naming the log."""
+    try:
+        return least_squares(fun, x0, **kw)
+    except (ValueError, FloatingPointError) as e:
+        raise IdentifyError("%s: the %s cannot be fitted: %s" % (path, what, e))
 
 
 def _line(t, y):
@@ -300,7 +311,7 @@ def fit_step(log, dead_time=True):
     lo = [-np.inf, 1e-6, 1e-4, 0.0]
     hi = [np.inf, np.inf, 10.0, MAX_DEAD_TIME_S if dead_time else 1e-12]
     x0[3] = min(x0[3], hi[3])
-    sol = least_squares(resid, x0, bounds=(lo, hi), x_scale=[1.0, 0.1, 0.01, 0.001])
+    sol = _fit(log.path, "step response", resid, x0, bounds=(lo, hi), x_scale=[1.0, 0.1, 0.01, 0.001])
     p0, phi, alpha, td = sol.x
     rms = float(np.sqrt(np.mean((step_position(sol.x, log, tm, t_end) - y) ** 2)))
     # resolution of the rise
@@ -349,8 +360,8 @@ def fit_rundown(log, step):
         lo = [-np.inf, 0.1 * w_c, 1e-3, 0.0]
         hi = [np.inf, 10.0 * w_c, 1e3, 10.0 * w_c if coulomb else 1e-9]
         x_start = np.clip(x_start, lo, [h if np.isfinite(h) else np.inf for h in hi])
-        sol = least_squares(lambda x: (rundown_position(x, tm) - y) * wts, x_start, bounds=(lo, hi),
-                            x_scale=[1.0, 0.1 * w_c, 0.1, 0.1 * w_c])
+        sol = _fit(where, "run-down", lambda x: (rundown_position(x, tm) - y) * wts, x_start, bounds=(lo, hi),
+                   x_scale=[1.0, 0.1 * w_c, 0.1, 0.1 * w_c])
         return sol.x, float(np.sqrt(np.mean((rundown_position(sol.x, tm) - y) ** 2)))
 
     xv, rms_v = fit(x0, False)
