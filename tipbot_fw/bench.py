@@ -132,7 +132,7 @@ def run_memory(n_ticks, gains=None, bare=False):
     else:
         fd, path = tempfile.mkstemp(prefix='tipbot-bench-', suffix='.log')
         os.close(fd)
-        writer = logfile.LogWriter(path, logfile.COLUMNS, n_ticks + 1)
+        writer = logfile.open_run_log(path, n_ticks + 1)
         os.unlink(path)
         writer.header({})
         log = logfile.LogBuffer.for_file(writer, (1, 1, 1, 1), config['log_max_rows'])

@@ -66,8 +66,9 @@ class LogWriter(object):
     nothing raises: a failed write (a full disk, an I/O error) is kept in ``failed``, the later
     records are skipped, and what was written before still reads."""
 
-    def __init__(self, path, columns, reserve_rows=0):
+    def __init__(self, path, columns, reserve_rows=0, layout=None):
         self.path = path
+        self.layout = layout
         self.ncols = len(columns)
         self.columns = [{'name': n, 'unit': u} for n, u in columns]
         self.rows_written = 0
@@ -117,6 +118,8 @@ class LogWriter(object):
         doc = dict(doc)
         doc['columns'] = self.columns
         doc['format_version'] = FORMAT_VERSION
+        if self.layout is not None:
+            doc['layout'] = self.layout
         return self._record(HEAD, _json_bytes(doc))
 
     def info(self, doc):
@@ -130,6 +133,16 @@ class LogWriter(object):
         ok = self._record(ROWS, _ROWS.pack(self.rows_written, len(body)) + body.tobytes())
         if ok:
             self.rows_written += len(body)
+        return ok
+
+    def rows_bytes(self, data, count):
+        """Append ``count`` rows given as their bytes (little-endian float64, ncols a row), as one
+        ROWS record: what the control loop's slack can afford (no conversion)."""
+        if len(data) != 8 * self.ncols * count:
+            raise ValueError('{} bytes are not {} rows of {} columns'.format(len(data), count, self.ncols))
+        ok = self._record(ROWS, _ROWS.pack(self.rows_written, count) + bytes(data))
+        if ok:
+            self.rows_written += count
         return ok
 
     def close(self, trailer):

@@ -11,7 +11,7 @@ import time
 import numpy as np
 
 from tipbot_fw import logcontainer
-from tipbot_fw.logcontainer import FORMAT_VERSION, MAGIC, LogFormatError, LogWriteError, LogWriter, read_log  # noqa: F401
+from tipbot_fw.logcontainer import FORMAT_VERSION, MAGIC, LogFormatError, LogWriteError, LogWriter  # noqa: F401
 
 STATE_NAMES = ('d_r', 'd_l', 'th1', 'th2', 'th3', 'd_r_dot', 'd_l_dot', 'th1_dot', 'th2_dot', 'th3_dot')
 STATE_UNITS = ('m', 'm', 'rad', 'rad', 'rad', 'm/s', 'm/s', 'rad/s', 'rad/s', 'rad/s')
@@ -146,19 +146,22 @@ class LogBuffer(object):
             return
         stop = end if self.max_rows is None else min(end, self.max_rows)
         if self.first_info is not None:
-            self.writer.info(self.first_info())
+            info = self.first_info()
+            info['log_t0'] = self.t0
+            self.writer.info(info)
             self.first_info = None
         if stop > start:
-            self.writer.rows(self._block(start, stop))
+            self.writer.rows_bytes(*self._block(start, stop))
         self.flushed = end
 
     def _block(self, start, stop):
-        p, q = start % self.capacity, stop - start
-        if p + q <= self.capacity:
-            block = self.mem[p:p + q]
-        else:
-            block = np.concatenate((self.mem[p:], self.mem[:p + q - self.capacity]))
-        return to_file_layout(block, self.polarity, self.t0)
+        """The rows start..stop as the file stores them: the memory layout's bytes as they are
+        (no conversion on the brick: read_log derives the file layout)."""
+        p, q = (start % self.capacity) * MEM_ROW_BYTES, (stop - start) * MEM_ROW_BYTES
+        end = p + q
+        if end <= len(self.data):
+            return self.data[p:end], stop - start
+        return self.data[p:] + self.data[:end - len(self.data)], stop - start
 
     def not_recorded(self):
         """Rows stored but beyond max_rows (not in the file)."""
@@ -206,6 +209,34 @@ def default_path(kind):
 
 def columns_header(columns=COLUMNS):
     return [{'name': n, 'unit': u} for n, u in columns]
+
+
+# What a run's log file stores: the memory rows (MEM_NAMES), converted to COLUMNS when read.
+STORED_LAYOUT = 'memory'
+STORED_COLUMNS = [(n, '') for n in MEM_NAMES]
+
+
+def open_run_log(path, reserve_rows):
+    """A LogWriter for a run log: its rows are memory rows (LogBuffer.flush)."""
+    return LogWriter(path, STORED_COLUMNS, reserve_rows, layout=STORED_LAYOUT)
+
+
+def read_log(path):
+    """-> (header, rows in the file layout COLUMNS). A run log whose file stores memory rows
+    (format 2) is converted here with its own configuration's polarities and its log_t0, so
+    every reader sees the columns of docs/log-format.md. LogFormatError as logcontainer.read_log."""
+    header, rows = logcontainer.read_log(path)
+    names = [c.get('name') if isinstance(c, dict) else c for c in header['columns']]
+    if header.get('layout') == STORED_LAYOUT and names == MEM_NAMES:
+        try:
+            pol = [header['config']['polarity'][r] for r in ('right_wheel', 'left_wheel', 'joint2', 'joint3')]
+            t0 = float(header.get('log_t0', rows[0, 0] if len(rows) else 0.0))
+        except (KeyError, TypeError, ValueError) as e:
+            raise LogFormatError('{}: a log of memory rows without its polarities or start time: {!r}'.format(path, e))
+        rows = to_file_layout(rows, pol, t0)
+        header['stored_columns'] = header['columns']
+        header['columns'] = columns_header(COLUMNS)
+    return header, rows
 
 
 def write_log(path, header, rows, nrows=None, columns=COLUMNS):

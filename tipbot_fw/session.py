@@ -46,7 +46,7 @@ def base_header(gains, config, duration_s):
 def open_log(log_path, config, ts_s, duration_s):
     """The run's LogWriter, with room reserved for its rows; LogWriteError (the path, a full
     disk) before anything runs."""
-    return logfile.LogWriter(log_path, logfile.COLUMNS, _log_rows(config, ts_s, duration_s))
+    return logfile.open_run_log(log_path, _log_rows(config, ts_s, duration_s))
 
 
 class BeatingClock(object):

@@ -34,16 +34,30 @@ Exit status: the controller's (``python3 -m tipbot_fw --help``), or 9 when the c
 without exiting (killed by a signal): the motors were stopped here, its log keeps the rows it
 wrote. ``--bench-polls N`` runs N polls without sleeping, for tools/tick-cost.
 """
-import os
-import select
 import signal
-import subprocess
-import sys
-import time
 
-from tipbot_fw import heartbeat as hb
-from tipbot_fw.config import MOTOR_ROLES, ConfigError, load_config
-from tipbot_fw.safety import EXIT_CONTROLLER_DIED, EXIT_INVALID, termination_signals
+# Before the imports below: a Ctrl-C while this module loads is noted, not a traceback, and
+# supervise() then starts nothing.
+_EARLY = []
+
+
+def _note_early(signum, frame):
+    _EARLY.append(signum)
+
+
+if __name__ == '__main__':
+    for _s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT):
+        signal.signal(_s, _note_early)
+
+import os  # noqa: E402
+import select  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+
+from tipbot_fw import heartbeat as hb  # noqa: E402
+from tipbot_fw.config import MOTOR_ROLES, ConfigError, load_config  # noqa: E402
+from tipbot_fw.safety import EXIT_CONTROLLER_DIED, EXIT_INVALID, termination_signals  # noqa: E402
 
 TIMEOUT_S = 0.025
 POLL_S = 0.010
@@ -196,7 +210,7 @@ def _realtime(priority):
 def supervise(argv, timeout_s=TIMEOUT_S, poll_s=POLL_S, grace_s=GRACE_S, python=None):
     """Run the controller with ``argv`` (python3 -m tipbot_fw ARGV) under watch. -> exit status."""
     signals = termination_signals()
-    received = []
+    received = list(_EARLY)
     child = {}
 
     def on_signal(signum, frame):
