@@ -105,7 +105,7 @@ bench: venv
 	@echo "== the same tick bare (without those three), for what they cost"
 	$(VPY) tools/tick-cost --ticks $(TICKS) -- python3 -m tipbot_fw.bench --bare
 	@echo "== the supervisor: instructions per poll (it polls every 10 ms, outside the controller's ticks)"
-	$(VPY) tools/tick-cost --ticks $(TICKS) --ticks-flag --bench-polls -- python3 -m tipbot_fw.supervisor
+	$(VPY) tools/tick-cost --ticks $(TICKS) --ticks-flag=--bench-polls -- python3 -m tipbot_fw.supervisor
 
 brick:
 	tools/brick-setup

@@ -13,9 +13,14 @@ import json
 import math
 
 
+def printable(text):
+    """text with what would break a one-line message (newlines, control characters) escaped."""
+    return ''.join(c if c.isprintable() else repr(c)[1:-1] for c in str(text))
+
+
 def message(source, field, problem):
-    """The one format of a bad field."""
-    return '{}: field {} {}'.format(source, field, problem)
+    """The one format of a bad field (one line, whatever the field's name holds)."""
+    return '{}: field {} {}'.format(source, printable(field), printable(problem))
 
 
 def is_number(v):
@@ -240,7 +245,7 @@ def loads(data):
     bad = _check_values(doc)
     if bad:
         where, problem = bad
-        raise JsonProblem('field {} {}'.format(where, problem) if where else problem)
+        raise JsonProblem('field {} {}'.format(printable(where), problem) if where else problem)
     return doc
 
 

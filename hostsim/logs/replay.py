@@ -59,6 +59,15 @@ def load_log(path):
     header["config"] is the configuration in force, completed with this version's defaults
     for fields an older firmware did not have (notes say which)."""
     header, rows, names = read_log(path, ReplayError)
+    try:
+        return _interpret(path, header, rows, names)
+    except (KeyError, TypeError, ValueError, AttributeError, IndexError) as e:
+        # a header whose fields have types this version does not expect (check_content names
+        # the ones it knows): one line, not a traceback
+        raise ReplayError("%s: a header this version cannot interpret: %s: %s" % (path, type(e).__name__, e))
+
+
+def _interpret(path, header, rows, names):
     if header.get("kind", "run") != "run":
         raise ReplayError("%s: a log of kind %r, not a balance run: analyse it with `python -m hostsim %s`"
                           % (path, header["kind"], header["kind"]))
