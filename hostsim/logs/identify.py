@@ -170,7 +170,37 @@ def load_log(path):
     if header.get("stop_reason") != "completed":
         raise IdentifyError("%s: the identify run stopped early (%s: %s); record it again"
                             % (path, header.get("stop_reason"), header.get("stop_message")))
-    return IdLog(path, header, rows)
+    check_content(path, header, rows, names)
+    try:
+        return IdLog(path, header, rows)
+    except (KeyError, TypeError, ValueError, AttributeError, IndexError) as e:
+        raise IdentifyError("%s: a header this version cannot interpret: %s: %s" % (path, type(e).__name__, e))
+
+
+def check_content(path, header, rows, names):
+    """The header's duty, finite rows, battery readings an EV3 can give, and the drive phase's
+    duty column equal to the header's (IdentifyError '<log>: field <name> <problem>')."""
+    f = fields.Fields(path, IdentifyError)
+    duty = f.check("duty", header.get("duty"), fields.number(lo=-100, hi=100, lo_open=False, integer=True))
+    if duty == 0:
+        f.fail("duty", "is 0: the motor was not driven")
+    bad = np.argwhere(~np.isfinite(rows))
+    if len(bad):
+        i, c = bad[0]
+        f.fail("rows[%d].%s" % (i, names[c]), "is %r, not a finite number" % rows[i, c])
+    col = {n: rows[:, i] for i, n in enumerate(names)}
+    battery = col["battery_v"]
+    out = np.nonzero((battery < BATTERY_MIN_V) | (battery > BATTERY_MAX_V))[0]
+    if len(out):
+        f.fail("rows[%d].battery_v" % out[0], "is %r V, outside what an EV3 battery reads (%g-%g V)"
+               % (battery[out[0]], BATTERY_MIN_V, BATTERY_MAX_V))
+    drive = col["phase"] == fw_identify.PHASE_DRIVE
+    wrong = np.nonzero(drive & (col["duty"] != duty))[0]
+    if len(wrong):
+        f.fail("duty", "is %d, but row %d of the drive says %r: header and body disagree"
+               % (duty, wrong[0], col["duty"][wrong[0]]))
+    if np.any(np.diff(col["time_s"]) < 0):
+        f.fail("rows.time_s", "goes backwards: not the reads of one run")
 
 
 def count_events(log, phase):
