@@ -7,6 +7,7 @@ import json
 import os
 
 import numpy as np
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -99,28 +100,14 @@ CONFIG = {'limits': {'th1_rad': 0.5}, 'filters': {'gyro_rate_cutoff_hz': 20.0}, 
           'ports': {'gyro': 'in2'}, 'gyro_calibration': {'duration_s': 1.0}}
 
 
+@pytest.mark.parametrize('doc, reader, error', [(GAINS, load_gains, GainsError), (CONFIG, load_config, ConfigError),
+                                               (SCENARIO, load_scenario, ScenarioError),
+                                               (PARAMS, load_params, ParameterError)],
+                         ids=['gains', 'config', 'scenario', 'parameters'])
 @FUZZ
 @given(data=st.data())
-def test_gains_files(tmp_path, data):
-    check_reader(tmp_path, mutate(GAINS, data).encode(), load_gains, GainsError)
-
-
-@FUZZ
-@given(data=st.data())
-def test_config_files(tmp_path, data):
-    check_reader(tmp_path, mutate(CONFIG, data).encode(), load_config, ConfigError)
-
-
-@FUZZ
-@given(data=st.data())
-def test_scenario_files(tmp_path, data):
-    check_reader(tmp_path, mutate(SCENARIO, data).encode(), load_scenario, ScenarioError)
-
-
-@FUZZ
-@given(data=st.data())
-def test_parameter_files(tmp_path, data):
-    check_reader(tmp_path, mutate(PARAMS, data).encode(), load_params, ParameterError)
+def test_each_file_format_with_one_field_fuzzed(tmp_path, doc, reader, error, data):
+    check_reader(tmp_path, mutate(doc, data).encode(), reader, error)
 
 
 @FUZZ
