@@ -155,7 +155,9 @@ def parse_scenario(doc, src="<scenario>"):
     f.known(doc, set(DEFAULTS) | {"name"})
     sc = dict(DEFAULTS)
     sc.update(doc)
-    sc["name"] = doc["name"] if "name" in doc else os.path.splitext(os.path.basename(src))[0]
+    # the file's own name, made a name, unless the document names itself (then it must be one)
+    sc["name"] = doc["name"] if "name" in doc else "".join(
+        c if c in NAME_CHARS else "_" for c in os.path.splitext(os.path.basename(src))[0]).lstrip(".") or "scenario"
     if (not isinstance(sc["name"], str) or not sc["name"] or not set(sc["name"]) <= NAME_CHARS
             or sc["name"].startswith(".") or len(sc["name"]) > 80):
         f.fail("name", "must be a name (letters, digits, _ . -; not starting with a dot; at most 80), not a "
