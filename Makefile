@@ -115,10 +115,15 @@ replay: venv
 # numpy 1.12, see README). Without the brick it says how to make one.
 bench: venv
 	$(VPY) -m hostsim bench-sim
+	@echo "== the control tick as it runs supervised: heartbeat, plausibility checks, log chunks to a file"
 	$(VPY) tools/tick-cost --ticks $(TICKS) -- python3 -m tipbot_fw.bench
-	@echo "with telemetry (one datagram every $(TELEMETRY_EVERY) ticks):"
+	@echo "== the same tick bare (without those three), for what they cost"
+	$(VPY) tools/tick-cost --ticks $(TICKS) -- python3 -m tipbot_fw.bench --bare
+	@echo "== the supervised tick with telemetry (one datagram every $(TELEMETRY_EVERY) ticks)"
 	$(VPY) tools/tick-cost --ticks $(TICKS) -- python3 -m tipbot_fw.bench --telemetry-every $(TELEMETRY_EVERY)
 	@$(VPY) -m tipbot_fw.bench --ticks $(TICKS) --telemetry-every $(TELEMETRY_EVERY) | grep '^telemetry:'
+	@echo "== the supervisor: instructions per poll (it polls every 10 ms, outside the controller's ticks)"
+	$(VPY) tools/tick-cost --ticks $(TICKS) --ticks-flag=--bench-polls -- python3 -m tipbot_fw.supervisor
 
 brick:
 	tools/brick-setup

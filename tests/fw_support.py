@@ -158,3 +158,10 @@ class TickCounter(object):
         if self.dev.write_calls:
             self.n += 1
             self.action(self.n)
+
+
+def moving_readings(polarity=1):
+    """A MemoryDevices source whose readings move every tick (so every logged value differs from
+    tick to tick), by steps the hardware can make (tipbot_fw.plausibility: a few counts a tick)."""
+    ticks = iter(range(10 ** 6))
+    return lambda: (lambda n: ((polarity * 3 * n, -n, n % 12, n % 7), (n // 50, (n % 5) - 2)))(next(ticks))

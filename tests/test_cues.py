@@ -68,9 +68,14 @@ def test_every_state_has_its_own_lights_and_melody():
     melodies = [melody for _, _, melody, _ in STATES.values()]
     assert len(set(lights)) == len(STATES) and len(set(melodies)) == len(STATES)
     for reason in ('fall', 'joint_limit', 'low_battery', 'device_failure', 'overruns', 'sigterm',
-                   'keyboard_interrupt', 'calibration', 'devices', 'completed'):
+                   'keyboard_interrupt', 'calibration', 'devices', 'completed', 'signal', 'battery_implausible'):
         assert stop_state(reason) in STATES and reason in STOP_WORDS
     assert stop_state('exception') == stop_state('a reason of a later version') == 'error'
+    # every stop reason the firmware and its supervisor give has its words on the screen
+    for reason in ('watchdog', 'supervisor_gone', 'controller_died', 'exception'):
+        assert stop_state(reason) == 'error' and reason in STOP_WORDS
+    assert stop_state('battery_implausible') == 'device_failure'
+    assert stop_state('signal') == stop_state('sigterm') == stop_state('keyboard_interrupt') == 'signal'
 
 
 def test_the_lights_are_the_ones_python_ev3dev2_drives():
@@ -212,8 +217,12 @@ def _stop(kind, dev, clock):
         return lambda n: n == 20 and setattr(dev, 'source', lambda: _raise(OSError(19, 'No such device')))
     if kind == 'overruns':
         return lambda n: n >= 10 and clock.advance(0.02)
+    if kind == 'battery_implausible':     # the loop reads it every 0.1 s here (run's config)
+        return lambda n: n == 20 and setattr(dev, 'battery_v', 1e-6)
     if kind == 'sigterm':
         return lambda n: n == 20 and os.kill(os.getpid(), signal.SIGTERM)
+    if kind == 'signal':
+        return lambda n: n == 20 and os.kill(os.getpid(), signal.SIGUSR1)
     if kind == 'keyboard_interrupt':
         return lambda n: n == 20 and _raise(KeyboardInterrupt())
     if kind == 'exception':
@@ -222,8 +231,9 @@ def _stop(kind, dev, clock):
 
 
 @pytest.mark.parametrize('reason, code', [('completed', 0), ('fall', 6), ('joint_limit', 6), ('device_failure', 5),
-                                          ('overruns', 7), ('sigterm', 143), ('keyboard_interrupt', 130),
-                                          ('exception', 1), ('low_battery', 4), ('calibration', 4)])
+                                          ('battery_implausible', 5), ('overruns', 7), ('sigterm', 143),
+                                          ('signal', 143), ('keyboard_interrupt', 130), ('exception', 1),
+                                          ('low_battery', 4), ('calibration', 4)])
 def test_each_stop_shows_its_lights_plays_its_melody_and_says_why(tmp_path, ev3, reason, code):
     dev = MemoryDevices(battery_v=6.0 if reason == 'low_battery' else 8.0)
     if reason == 'calibration':     # the gyro jolts while the robot should be held still
@@ -232,7 +242,7 @@ def test_each_stop_shows_its_lights_plays_its_melody_and_says_why(tmp_path, ev3,
         dev.source = lambda: ((0, 0, 0, 0), (0, 9 if next(reads) == settle + 3 else 0))
     clock = VirtualClock()
     clock.on_sleep = S.TickCounter(dev, _stop(reason, dev, clock))
-    got, header, words = run(tmp_path, ev3, dev, clock, duration_s=0.8)
+    got, header, words = run(tmp_path, ev3, dev, clock, duration_s=0.8, config=S.fw_config(battery_period_s=0.1))
     assert (got, header['stop_reason']) == (code, reason)
     state = stop_state(reason)
     assert ev3.lights() == colors(state)

@@ -55,7 +55,7 @@ def test_any_kind_of_log_exports_its_own_columns(tmp_path):
 
 @pytest.mark.parametrize('make, message', [
     (lambda p: None, 'no such log file'),
-    (lambda p: open(p, 'wb').write(b'TIPBLOG\nshort'), 'truncated'),
+    (lambda p: open(p, 'wb').write(b'TIPBLOG\n\x02\x00'), 'truncated'),     # cut inside the preamble
 ])
 def test_a_log_that_cannot_be_read_gets_one_line(tmp_path, capsys, make, message):
     path = str(tmp_path / 'bad.log')

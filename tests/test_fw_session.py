@@ -40,7 +40,7 @@ def test_completed_run(tmp_path):
     dev = MemoryDevices()
     code, header, path, msgs = session(tmp_path, dev, duration_s=0.5)
     h, rows = assert_stopped_and_logged(dev, path, 'completed', 0, header)
-    assert h['ticks'] == 100 and msgs[-1] == 'stopped: completed (exit 0, 100 ticks)'
+    assert h['ticks'] == 100 and msgs[-1] == 'stopped: completed (exit 0, 100 ticks); log {}'.format(path)
     assert dev.closed is False          # closing the devices is the caller's (cli's) job
 
 

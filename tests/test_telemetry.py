@@ -39,8 +39,7 @@ def received(sock):
 def moving_run(tmp_path, sender, polarity=1, duration_s=0.6):
     """A session whose readings move (so every value differs from tick to tick); -> (header, rows)."""
     dev = MemoryDevices()
-    ticks = iter(range(10 ** 6))
-    dev.source = lambda: (lambda n: ((polarity * 3 * n, -n, n % 40, n % 7), (n // 50, (n % 5) - 2)))(next(ticks))
+    dev.source = S.moving_readings(polarity)
     path = str(tmp_path / 'run.log')
     code, header = run_session(dev, S.load(), S.fw_config(polarity={'right_wheel': polarity}), VirtualClock(),
                                log_path=path, duration_s=duration_s, say=lambda m: None, cues=OwnerCues(streams=()),

@@ -24,8 +24,7 @@ from tipbot_fw.devices import MemoryDevices
 from tipbot_fw.session import run_session
 from tipbot_fw.telemetry import TelemetrySender
 dev = MemoryDevices()
-ticks = iter(range(10 ** 6))
-dev.source = lambda: (lambda n: ((3 * n, -n, n % 40, n % 7), (n // 50, (n % 5) - 2)))(next(ticks))
+dev.source = S.moving_readings()
 sender = TelemetrySender(sys.argv[1], every=5)
 code, header = run_session(dev, S.load(), S.fw_config(), VirtualClock(), log_path=sys.argv[2], duration_s=1.0,
                            say=lambda m: None, cues=OwnerCues(streams=()), telemetry=sender)

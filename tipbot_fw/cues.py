@@ -31,7 +31,9 @@ STOP_WORDS = {
     'device_failure': 'STOPPED: sensor/motor failed', 'overruns': 'STOPPED: ticks late (overruns)',
     'low_battery': 'NOT STARTED: battery low, charge it', 'calibration': 'NOT STARTED: moved while calibrating',
     'devices': 'NOT STARTED: devices missing', 'keyboard_interrupt': 'STOPPED: Ctrl-C',
-    'sigterm': 'STOPPED: terminated', 'exception': 'STOPPED: error (a bug)',
+    'sigterm': 'STOPPED: terminated', 'signal': 'STOPPED: a signal', 'exception': 'STOPPED: error (a bug)',
+    'battery_implausible': 'STOPPED: battery reading bad', 'watchdog': 'STOPPED: stalled (supervisor)',
+    'supervisor_gone': 'STOPPED: supervisor gone', 'controller_died': 'STOPPED: crashed (supervisor)',
 }
 
 
@@ -114,7 +116,8 @@ class LoopCues(object):
     """The cues given while the loop runs, as a side task (tipbot_fw.slack): called with k, the
     ticks done, it does at most one light or tone write that is due and returns the tick at
     which it wants to be called next. Times become ticks of period_s; the battery is the
-    loop's own reading (stats.battery_v), checked after each one (every battery_every ticks)."""
+    loop's own reading (stats.battery_v), checked about once a battery period (every
+    battery_every ticks: a call the loop made late for want of slack checks it too)."""
 
     def __init__(self, cues, period_s, battery_every, stats, warn_battery_v):
         self.cues = cues
@@ -142,12 +145,11 @@ class LoopCues(object):
         if not self.balancing and k >= self.balancing_at:
             self.balancing = True
             self._queue('battery_warning' if self.warned else 'balancing', k)
-        if k % self.battery_every == 0:
-            bv = self.stats.battery_v
-            if not self.warned and bv is not None and bv < self.warn_battery_v:
-                self.warned = True
-                self.cues.battery_warning(bv, self.warn_battery_v)
-                self._queue('battery_warning', k)
+        bv = self.stats.battery_v
+        if not self.warned and bv is not None and bv < self.warn_battery_v:
+            self.warned = True
+            self.cues.battery_warning(bv, self.warn_battery_v)
+            self._queue('battery_warning', k)
         nxt = (k // self.battery_every + 1) * self.battery_every
         self.next_check = self.balancing_at if k < self.balancing_at < nxt else nxt
 

@@ -50,19 +50,23 @@ STATES = {
     'device_failure': (RED, OFF, ((220, 0.10), (0, 0.10), (220, 0.10), (0, 0.10), (220, 0.10)),
                        'stopped: a sensor or motor failed'),
     'overruns': (GREEN, RED, ((659, 0.05), (0, 0.05)) * 3 + ((659, 0.05),), 'stopped: ticks late'),
-    'signal': (OFF, AMBER, ((523, 0.10), (392, 0.20)), 'stopped by a signal (Ctrl-C, SIGTERM, hang-up)'),
+    'signal': (OFF, AMBER, ((523, 0.10), (392, 0.20)), 'stopped by a signal (Ctrl-C, SIGTERM, hang-up, ...)'),
     'low_battery': (AMBER, RED, ((330, 0.30), (262, 0.50)), 'not started: battery low'),
     'calibration': (OFF, RED, ((440, 0.10), (330, 0.30)), 'not started: moved during calibration'),
     'devices': (AMBER, OFF, ((196, 0.60),), 'not started: devices missing'),
     'error': (RED, RED, ((196, 0.20), (0, 0.10), (196, 0.20), (0, 0.10), (196, 0.40)),
-              'stopped: an error (a bug)'),
+              'stopped: an error (a bug, a crash, a stall)'),
 }
 
-# tipbot_fw.safety's stop reasons -> states; any other reason shows 'error'
+# tipbot_fw.safety's stop reasons -> states; any other reason shows 'error'. An implausible
+# battery reading is a failed read (exit 5, as a sensor's). The supervisor's stops (a stalled
+# controller, 'watchdog'; one that died, 'controller_died', shown by the supervisor itself) and
+# a lost supervisor are errors: the 16 light pairs hold no distinct one for them that is not
+# 'all off', and the screen's words tell them apart.
 STOP_STATES = {'completed': 'completed', 'fall': 'fall', 'joint_limit': 'joint_limit',
-               'device_failure': 'device_failure', 'overruns': 'overruns', 'low_battery': 'low_battery',
-               'calibration': 'calibration', 'devices': 'devices', 'keyboard_interrupt': 'signal',
-               'sigterm': 'signal'}
+               'device_failure': 'device_failure', 'battery_implausible': 'device_failure',
+               'overruns': 'overruns', 'low_battery': 'low_battery', 'calibration': 'calibration',
+               'devices': 'devices', 'keyboard_interrupt': 'signal', 'sigterm': 'signal', 'signal': 'signal'}
 
 
 def stop_state(reason):

@@ -2,9 +2,11 @@
 
 A side task is a callable task(k) -> the tick at which it wants to be called next (> k); k is
 the number of ticks done, so the newest log row is tick k - 1's. tipbot_fw.loop calls its one
-side task in the tick it asked for, after the writes and the battery read, before it sleeps:
-between two calls a side task costs the loop one integer comparison per tick. Side tasks never
-touch the motors and never raise on a device of their own (lights, speaker, network).
+side task after the writes, the log's chunk and the battery read, before it sleeps, in the
+first tick from the one it asked for that leaves enough slack (loop.SLACK_S): a call may come
+a few ticks late, never early. Between two calls a side task costs the loop one integer
+comparison per tick. Side tasks never touch the motors and never raise on a device of their
+own (lights, speaker, network).
 """
 
 

@@ -39,8 +39,8 @@ BODY = struct.Struct('<{}d'.format(len(ROW_FIELDS)))
 SIZE = HEADER.size + BODY.size
 _ROW_BYTES = logfile.MEM_ROW_BYTES
 # Default decimation: a datagram every 20 ticks, 10 per second at 5 ms. A datagram costs about
-# 8,300 ARMv5 instructions, 416 a tick at this rate: today's tick (99,240 of its 100,000) has
-# room for no more (docs/telemetry.md).
+# 10,000 ARMv5 instructions, about 500 a tick at this rate: today's tick (105,400, over its
+# 100,000) has room for no more (docs/telemetry.md).
 DEFAULT_EVERY = 20
 # Decoded inputs: u = polarity * duty * battery_v / 100 (tipbot_fw.logfile.to_file_layout)
 _INPUTS = (('u_r', 'duty_r'), ('u_l', 'duty_l'), ('u_th2', 'duty_2'), ('u_th3', 'duty_3'))
