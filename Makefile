@@ -10,21 +10,26 @@ REQ      := requirements-host.txt
 VENV_KEY := $(shell { cat $(REQ); $(PYTHON) -c 'import sys; print(sys.version)'; } 2>/dev/null | sha256sum | cut -c1-16)
 STAMP    := $(VENV)/.tipbot-venv-$(VENV_KEY)
 
-# make gains TS=0.010 VARIANT=paper PARAMS=identified.json
+# make gains TS=0.010 VARIANT=paper PARAMS=identified.json [GAINS_DIR=gains]
+# (another TS or PARAMS writes its own file, e.g. gains/physical-ts0.010.json)
 TS       ?=
 PARAMS   ?=
 VARIANT  ?=
+GAINS_DIR ?=
 # make test PYTEST_ARGS='-k gains -x'
 PYTEST_ARGS ?=
 # make bench TICKS=2000
 TICKS    ?= 1000
 # make deploy HOST=robot@ev3dev.local [REMOTE_DIR=tipbot] [DEPLOY_VARIANT=physical] [CONFIG=my.json]
 #             [SERVICE=1] [SSH='ssh -F my_ssh_config']      (tools/deploy; host needs only python3 + ssh)
+#             [REMOVE_CONFIG=1: remove the brick's config.json] [FORCE=1: deploy gains not robust]
 # make run HOST=... [DURATION=10] [RUN_ARGS='--sysfs-root DIR']; make logs HOST=... [LOGS_DIR=dir]
 HOST     ?=
 REMOTE_DIR ?= tipbot
 DEPLOY_VARIANT ?= $(if $(VARIANT),$(VARIANT),physical)
 CONFIG   ?=
+REMOVE_CONFIG ?=
+FORCE    ?=
 SERVICE  ?=
 SSH      ?= ssh
 STAGE    ?= build/ev3
@@ -37,24 +42,37 @@ CONNECT  = $(HOST) --remote-dir '$(REMOTE_DIR)' --ssh "$(SSH)"
 LOG      ?=
 GAINS    ?=
 REPLAY_ARGS ?=
+# make watch HOST=... [DURATION=s] [WATCH_PORT=5005] [RECORD=file.csv] [SNAPSHOT=file.png]
+WATCH_PORT ?= 5005
+RECORD   ?=
+SNAPSHOT ?=
+# make bench TELEMETRY_EVERY=20: the decimation of the telemetry bench (the firmware's default)
+TELEMETRY_EVERY ?= 20
 
 .DEFAULT_GOAL := help
-.PHONY: help venv test gains paper-check sim replay bench brick stage deploy run logs clean distclean
+.PHONY: help venv test gains paper-check sim replay bench brick stage deploy run logs watch sim-brick \
+        sim-brick-stop clean distclean
 
 help:
 	@echo "tipbot make targets (Python ones run in $(VENV), made by 'make venv'):"
 	@echo "  venv         create/update $(VENV) from $(REQ) (idempotent)"
 	@echo "  test         run the test suite (pytest tests/; PYTEST_ARGS=...)"
 	@echo "  sim          paper scenarios + robustness, firmware in the loop -> out/sim/report.md"
-	@echo "  gains        regenerate gains/*.json (TS=0.010 VARIANT=paper|physical)"
+	@echo "  gains        regenerate gains/*.json; unchanged within tolerance: left as they are"
+	@echo "               (TS=0.010 VARIANT=paper|physical PARAMS=file: another TS/PARAMS gets its own file)"
 	@echo "  paper-check  compare the paper variant's gains with the paper's Appendix C"
 	@echo "  replay       replay a robot log on the host (LOG=file; GAINS=other.json)"
 	@echo "  bench        simulation real-time factor; instructions per control tick on the virtual brick"
 	@echo "  brick        set up the virtual brick for 'make bench' (root, ~2 min)"
 	@echo "  stage        lay out what deploy copies, in $(STAGE) (DEPLOY_VARIANT=, CONFIG=)"
-	@echo "  deploy       copy what changed to the brick over ssh (HOST=robot@ev3dev.local; SERVICE=1)"
+	@echo "  deploy       copy what changed to the brick over ssh (HOST=robot@ev3dev.local; CONFIG=file,"
+	@echo "               REMOVE_CONFIG=1, DEPLOY_VARIANT=physical-ts0.010, FORCE=1, SERVICE=1)"
 	@echo "  run          run the controller on the brick over ssh (HOST=...; DURATION=s)"
 	@echo "  logs         fetch the brick's new run logs into logs/<host>/ (HOST=...)"
+	@echo "  watch        run on the brick with live telemetry plotted here (HOST=...; DURATION=s,"
+	@echo "               RECORD=file.csv, SNAPSHOT=file.png, WATCH_PORT=5005)"
+	@echo "  sim-brick    a brick without a brick: loopback sshd + simulated robot; prints HOST= and SSH="
+	@echo "  sim-brick-stop  stop it (or Ctrl-C where it runs)"
 	@echo "  clean        remove build products and caches; distclean also removes $(VENV)"
 
 venv: $(STAMP)
@@ -66,6 +84,10 @@ $(STAMP):
 	$(PYTHON) -m venv $(VENV)
 	$(VPY) -m pip install --disable-pip-version-check --no-input --quiet --prefer-binary -r $(REQ)
 	$(VPY) -m pip check
+	@# the host commands on PATH (tipbot-host VERB), from this checkout (pip builds it with a
+	@# setuptools and wheel of its own, from the same package index)
+	@$(VPY) -m pip install --disable-pip-version-check --no-input --quiet --no-deps -e . \
+	  || echo "make venv: tipbot-host not installed (pip install -e . failed; python -m hostsim works)"
 	@touch $@
 	@echo "make venv: $(VENV) ready ($$($(VPY) --version))"
 
@@ -75,7 +97,8 @@ test: venv
 	exit $$rc
 
 gains: venv
-	$(VPY) -m hostsim gains $(if $(TS),--ts $(TS)) $(if $(VARIANT),--variant $(VARIANT)) $(if $(PARAMS),--params $(PARAMS))
+	$(VPY) -m hostsim gains $(if $(TS),--ts $(TS)) $(if $(VARIANT),--variant $(VARIANT)) $(if $(PARAMS),--params $(PARAMS)) \
+	  $(if $(GAINS_DIR),--out-dir $(GAINS_DIR))
 
 paper-check: venv
 	$(VPY) -m hostsim paper-check
@@ -92,8 +115,16 @@ replay: venv
 # numpy 1.12, see README). Without the brick it says how to make one.
 bench: venv
 	$(VPY) -m hostsim bench-sim
+	@echo "== the control tick as it runs supervised: heartbeat, plausibility checks, log chunks to a file"
 	$(VPY) tools/tick-cost --ticks $(TICKS) -- python3 -m tipbot_fw.bench
-	@echo "the device layer's own cost (5 reads, 4 writes per tick, beside the tick's):"
+	@echo "== the same tick bare (without those three), for what they cost"
+	$(VPY) tools/tick-cost --ticks $(TICKS) -- python3 -m tipbot_fw.bench --bare
+	@echo "== the supervised tick with telemetry (one datagram every $(TELEMETRY_EVERY) ticks)"
+	$(VPY) tools/tick-cost --ticks $(TICKS) -- python3 -m tipbot_fw.bench --telemetry-every $(TELEMETRY_EVERY)
+	@$(VPY) -m tipbot_fw.bench --ticks $(TICKS) --telemetry-every $(TELEMETRY_EVERY) | grep '^telemetry:'
+	@echo "== the supervisor: instructions per poll (it polls every 10 ms, outside the controller's ticks)"
+	$(VPY) tools/tick-cost --ticks $(TICKS) --ticks-flag=--bench-polls -- python3 -m tipbot_fw.supervisor
+	@echo "== the device layer's own cost (5 reads, 4 writes per tick, beside the tick's)"
 	$(VPY) tools/tick-cost --ticks $(TICKS) -- python3 -m tipbot_fw.bench --device-layer
 
 brick:
@@ -102,20 +133,22 @@ brick:
 # What goes onto the brick, laid out as in its install directory (for inspection; deploy
 # stages in memory and writes the same tree here).
 stage:
-	$(DEPLOY) stage --variant $(DEPLOY_VARIANT) $(if $(CONFIG),--config $(CONFIG)) --stage $(STAGE)
+	$(DEPLOY) stage --variant $(DEPLOY_VARIANT) $(if $(CONFIG),--config $(CONFIG)) --stage $(STAGE) \
+	  $(if $(FORCE),--force)
 
 define need_host
 	@test -n "$(HOST)" || { echo "usage: make $@ HOST=robot@ev3dev.local" >&2; exit 2; }
 endef
 
 # Sends only what changed since the last deploy (sha256 manifest, tar over one ssh connection;
-# the brick needs nothing but sh and tar), removes what is no longer deployed, keeps logs/,
-# then checks the brick's Python, numpy and ev3dev2 (install.sh --check). SERVICE=1 also
-# installs the systemd unit.
+# the brick needs nothing but sh and tar), removes what is no longer deployed, keeps logs/ and
+# the brick's config.json (REMOVE_CONFIG=1 removes it), then checks the brick's Python, numpy
+# and ev3dev2 (install.sh --check). SERVICE=1 also installs the systemd unit. Gains whose file
+# says they do not stabilize the model(s) they must also hold are refused unless FORCE=1.
 deploy:
 	$(need_host)
 	$(DEPLOY) deploy $(CONNECT) --variant $(DEPLOY_VARIANT) $(if $(CONFIG),--config $(CONFIG)) \
-	  --stage $(STAGE) $(if $(SERVICE),--service)
+	  --stage $(STAGE) $(if $(SERVICE),--service) $(if $(REMOVE_CONFIG),--remove-config) $(if $(FORCE),--force)
 
 # Runs the launcher on the brick in the foreground and reports its exit status (Ctrl-C: the
 # firmware stops the motors and writes its log).
@@ -128,6 +161,21 @@ run:
 logs:
 	$(need_host)
 	$(DEPLOY) logs $(CONNECT) $(if $(LOGS_DIR),--dest $(LOGS_DIR))
+
+# Live plots of the run's telemetry: `hostsim watch` listens on WATCH_PORT and runs `make run`'s
+# command, whose firmware sends its telemetry to the address the ssh connection comes from.
+watch: venv
+	$(need_host)
+	$(VPY) -m hostsim watch --port $(WATCH_PORT) $(if $(RECORD),--record $(RECORD)) \
+	  $(if $(SNAPSHOT),--snapshot $(SNAPSHOT)) -- \
+	  $(DEPLOY) run $(CONNECT) --telemetry-port $(WATCH_PORT) $(if $(DURATION),--duration $(DURATION)) -- $(RUN_ARGS)
+
+# The loopback brick (tools/sim-brick): runs in the foreground until Ctrl-C or `make sim-brick-stop`.
+sim-brick: venv
+	$(VPY) tools/sim-brick start --python $(abspath $(VPY))
+
+sim-brick-stop:
+	$(PYTHON) tools/sim-brick stop
 
 clean:
 	rm -rf build dist *.egg-info .pytest_cache .cache

@@ -1,4 +1,5 @@
 """python3 -m tipbot_fw: refusals before touching devices, exit codes, a run on the fake EV3."""
+import os
 import subprocess
 import sys
 
@@ -51,6 +52,28 @@ def test_missing_devices(tmp_path, capsys):
     assert 'tipbot: devices: ' in capsys.readouterr().err
 
 
+def test_a_run_refused_for_missing_devices_writes_a_log_naming_them(tmp_path, capsys):
+    with FakeEV3(str(tmp_path / 'sys'), motors={'outC': None}, gyro_port=None) as f:
+        log = str(tmp_path / 'run.log')
+        assert cli.main(['run', '--gains', PHYSICAL_GAINS, '--log', log, '--sysfs-root', f.sysfs_root]) == 3
+    header, rows = read_log(log)
+    assert header['stop_reason'] == 'devices' and header['exit_code'] == 3 and len(rows) == 0
+    assert 'port outC: no motor found' in header['stop_message'] and 'port in2: no sensor found' in header['stop_message']
+    assert '\n' not in header['stop_message'] and header['gains']['path'] == PHYSICAL_GAINS
+    assert 'log {}'.format(log) in capsys.readouterr().err
+
+
+@pytest.mark.parametrize('checkout, where', [(True, 'logs'), (False, '.')])
+def test_logs_go_to_logs_in_a_checkout_or_install_directory(tmp_path, monkeypatch, checkout, where):
+    from tipbot_fw import logfile
+    if checkout:
+        (tmp_path / 'tipbot_fw').mkdir()
+    monkeypatch.chdir(tmp_path)
+    path = logfile.default_path('tipbot')
+    assert os.path.dirname(path) == ('logs' if checkout else '') and os.path.isdir(where)
+    assert os.path.basename(path).startswith('tipbot-2') and path.endswith('.log')
+
+
 @pytest.fixture
 def fake(tmp_path):
     f = FakeEV3(str(tmp_path / 'sys'), battery_v=8.2)
@@ -64,15 +87,20 @@ def fake(tmp_path):
 @pytest.fixture
 def quick_config(tmp_path):
     return S.write_json(tmp_path / 'quick.json',
-                        {'realtime_priority': 0, 'gyro_calibration': {'duration_s': 0.05}})
+                        {'realtime_priority': 0, 'gyro_calibration': {'settle_s': 0.05, 'duration_s': 0.05}})
 
 
 def test_run_on_the_fake_ev3(fake, tmp_path, quick_config, capsys):
     log = str(tmp_path / 'run.log')
     code = cli.main(['run', '--gains', PHYSICAL_GAINS, '--config', quick_config, '--duration', '0.1',
                      '--log', log, '--sysfs-root', fake.sysfs_root])
-    err = capsys.readouterr().err
+    out, err = capsys.readouterr()
     assert code == 0, err
+    # when to let go, though the state is zero and no wheel drives: on the brick's screen
+    # (stdout) and over ssh (stderr)
+    for text in (out, err):
+        assert 'tipbot: HOLD the robot still and upright: calibrating the gyro (0.1 s)\n' \
+               'tipbot: LET GO NOW: balancing\n' in text
     header, rows = read_log(log)
     assert header['stop_reason'] == 'completed' and len(rows) == 20
     assert header['encoder_offsets'] == [100, -20, 30, 40]
@@ -107,7 +135,7 @@ def test_bench_imports_only_the_firmware_and_numpy():
 def test_module_entry_point_runs():
     p = subprocess.run([sys.executable, '-m', 'tipbot_fw', '--help'], cwd=REPO,
                        stdout=subprocess.PIPE, universal_newlines=True)
-    assert p.returncode == 0 and '143 terminated (SIGTERM)' in p.stdout
+    assert p.returncode == 0 and '143 terminated by a signal (SIGTERM' in p.stdout
 
 
 def test_on_robot_bench_runs_against_any_devices():

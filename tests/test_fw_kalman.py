@@ -8,9 +8,13 @@ import pytest
 import fw_support as S
 from conftest import PAPER_GAINS, PHYSICAL_GAINS
 from tipbot_fw import fixedpoint as fx
-from tipbot_fw import kalman
+from tipbot_fw import kalman, logfile, plausibility
+from tipbot_fw.clock import VirtualClock
+from tipbot_fw.devices import MemoryDevices
 from tipbot_fw.gains import ACTUATED_INPUTS, load_gains
 from tipbot_fw.kalman import KalmanCore, fold, reference_step
+from tipbot_fw.loop import ControlLoop
+from tipbot_fw.safety import DeviceFailure
 
 DEG = math.pi / 180
 ACT = ACTUATED_INPUTS
@@ -175,25 +179,32 @@ def test_no_sum_of_the_product_can_overflow(name, battery_v):
         assert core.M.dot(np.array(v, dtype=np.int64)).tolist() == exact
 
 
-def test_the_battery_outside_the_scaled_range_is_refused():
+def test_the_law_is_scaled_for_what_an_ev3_battery_reads():
+    # the loop refuses any other reading (plausibility.check_battery) before it reaches the core
+    assert kalman.BATTERY_RANGE_V == (plausibility.BATTERY_MIN_V, plausibility.BATTERY_MAX_V)
     core = KalmanCore(committed('physical'), S.fw_config())
     core.set_gyro_bias(0.0)
-    from tipbot_fw.safety import DeviceFailure
-    with pytest.raises(DeviceFailure, match='outside the 4.0..12.0 V'):
+    with pytest.raises(ValueError, match='outside the 4.5..11.0 V'):
         core.set_battery(0.001)
 
 
-def test_a_wheel_encoder_jump_is_a_failed_read():
-    gains = committed('physical')
-    core = KalmanCore(gains, S.fw_config())
+def test_a_wheel_count_change_beyond_the_fixed_point_range_never_reaches_the_core():
+    config = S.fw_config()
+    core = KalmanCore(committed('physical'), config)
+    bound = plausibility.EncoderBound(config, (360,) * 4, S.TS)
+    capped = bound.with_max_step(core.max_count_step)
+    assert capped.per_tick == bound.per_tick < 30            # at the period the motors' reach decides
+    # a tick 0.6 s late: the motors could have turned 1500 counts, the law's integers take 1023
+    bound.check((0, 0, 0, 0), (1500, 0, 0, 0), 0.6, 0, 7)
+    with pytest.raises(DeviceFailure, match="1500 counts in 600.0 ms, more than the control law's fixed-point range"):
+        capped.check((0, 0, 0, 0), (1500, 0, 0, 0), 0.6, 0, 7)
+    # and the loop applies the core's cap itself, whatever bound it was given
+    readings = iter([((0, 0, 0, 0), (0, 0))] * 3 + [((5000, 0, 0, 0), (0, 0))])
+    dev = MemoryDevices(source=lambda: next(readings))
     core.set_gyro_bias(0.0)
-    core.set_battery(8.0)
-    buf = bytearray(core.rows.row_bytes)
-    core.start((0, 0, 0, 0), (0, 0), buf, 0)
-    core.step((3, -2, 0, 0), (0, 0), buf, 0)
-    from tipbot_fw.safety import DeviceFailure
-    with pytest.raises(DeviceFailure, match='jumped by 5000 counts'):
-        core.step((5003, -2, 0, 0), (0, 0), buf, 0)
+    loop = ControlLoop(dev, core, VirtualClock(), logfile.LogBuffer(10, core.rows), S.TS, 8.0, duration_s=1.0)
+    with pytest.raises(DeviceFailure, match='tick 3: the encoder of right_wheel .* moved 5000 counts'):
+        loop.run()
 
 
 def test_joint_limits_are_checked_on_the_counts_before_the_product():

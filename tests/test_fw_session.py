@@ -3,10 +3,13 @@ import os
 import signal
 
 import numpy as np
+import pytest
 
 import fw_support as S
 from tipbot_fw import logfile
+from tipbot_fw.calibration import sample_counts
 from tipbot_fw.clock import VirtualClock
+from tipbot_fw.cues import OwnerCues
 from tipbot_fw.devices import MemoryDevices
 from tipbot_fw.logfile import FLAG_BITS, col, read_log
 from tipbot_fw.session import run_session
@@ -34,23 +37,14 @@ def col_of(h, name):
     return [c['name'] for c in h['columns']].index(name)
 
 
-class TickCounter(object):
-    """on_sleep hook: counts loop ticks (sleeps after the first write) and runs `action(n)`."""
-
-    def __init__(self, dev, action):
-        self.dev, self.action, self.n = dev, action, 0
-
-    def __call__(self, t_from, t_to):
-        if self.dev.write_calls:
-            self.n += 1
-            self.action(self.n)
+TickCounter = S.TickCounter
 
 
 def test_completed_run(tmp_path):
     dev = MemoryDevices()
     code, header, path, msgs = session(tmp_path, dev, duration_s=0.5)
     h, rows = assert_stopped_and_logged(dev, path, 'completed', 0, header)
-    assert h['ticks'] == 100 and msgs[-1] == 'stopped: completed (exit 0, 100 ticks)'
+    assert h['ticks'] == 100 and msgs[-1] == 'stopped: completed (exit 0, 100 ticks); log {}'.format(path)
     assert dev.closed is False          # closing the devices is the caller's (cli's) job
 
 
@@ -185,23 +179,47 @@ def test_low_battery_refuses_to_start(tmp_path):
     assert '6.20 V is below limits.min_battery_v = 6.5 V' in h['stop_message']
 
 
-def test_gyro_moving_during_calibration_refuses_to_start(tmp_path):
+def calibration_source(dev, sample):
+    """dev's readings during calibration: sample(i, used) -> (gyro angle, rate) for the i-th read,
+    ``used`` False for the settle samples the calibration reads and does not use."""
+    settle, _ = sample_counts(S.fw_config()['gyro_calibration'], S.load().ts_s)
+    reads = iter(range(100000))
+
+    def source():
+        i = next(reads)
+        return (0, 0, 0, 0), sample(i - settle, i >= settle)
+    dev.source = source
+
+
+@pytest.mark.parametrize('sample, message', [
+    # the rate jumps: the robot moved
+    (lambda i, used: (0, [0, 1, 0, 9][i] if used and i < 4 else 0), 'gyro rate varied by 9 deg/s'),
+    # 50 deg/s in rate and angle alike: as consistent as a bias, but no held robot's bias
+    (lambda i, used: (i // 4, 50), 'gyro read a steady 50.0 deg/s during calibration '
+                                   '(gyro_calibration.max_bias_dps is 5)'),
+    # the angle jumps 4 deg in the middle of the window; no rate sample saw the knock
+    (lambda i, used: (4 if i >= 10 else 0, 0), 'gyro angle changed by 4 deg during calibration where its '
+                                               'drift of 0.00 deg/s explains 0.0 deg'),
+], ids=['jolt', 'steady-turn', 'knock'])
+def test_a_robot_moved_during_calibration_refuses_to_start(tmp_path, sample, message):
     dev = MemoryDevices()
-    rates = iter([0, 1, 0, 9] + [0] * 1000)
-    dev.source = lambda: ((0, 0, 0, 0), (0, next(rates)))
+    calibration_source(dev, sample)
     code, header, path, _ = session(tmp_path, dev)
     h, _ = assert_stopped_and_logged(dev, path, 'calibration', 4, header)
     assert dev.write_calls == 0
-    assert 'gyro rate varied by 9 deg/s' in h['stop_message']
+    assert message in h['stop_message']
 
 
-def test_gyro_turning_steadily_during_calibration_refuses_to_start(tmp_path):
+def test_a_drifting_gyro_starts_and_the_old_mode_samples_are_not_used(tmp_path):
+    # 3 deg/s of bias drift the angle 3 deg a second; before the mode switch took effect the
+    # gyro still reported an angle counted since it was plugged in, and no rate
     dev = MemoryDevices()
-    angle = iter(range(1000))
-    dev.source = lambda: ((0, 0, 0, 0), (next(angle) // 4, 50))
-    code, header, path, _ = session(tmp_path, dev)
-    h, _ = assert_stopped_and_logged(dev, path, 'calibration', 4, header)
-    assert 'gyro angle changed by' in h['stop_message']
+    calibration_source(dev, lambda i, used: (int(3 * 0.005 * i) if used else 1800, 3 if used else 0))
+    code, header, path, _ = session(tmp_path, dev, duration_s=0.1)
+    h, _ = assert_stopped_and_logged(dev, path, 'completed', 0, header)
+    cal = h['calibration']
+    assert cal['gyro_bias_dps'] == 3.0 and cal['settle_samples'] == 20 and cal['samples'] == 20
+    assert abs(cal['unexplained_angle_deg']) < 1
 
 
 def test_header_has_what_a_replay_needs(tmp_path):
@@ -242,3 +260,54 @@ def test_polarity_changes_only_the_sign_of_what_the_motor_sees(tmp_path):
     np.testing.assert_array_equal(a[:, names.index('enc_r')], -b[:, names.index('enc_r')])
     np.testing.assert_array_equal(a[:, names.index('duty_r')], -b[:, names.index('duty_r')])
     assert np.abs(a[:, names.index('duty_r')]).max() > 0
+
+
+class ReadCountingStream(object):
+    """A text stream that notes how many device reads had been made at each line written."""
+
+    def __init__(self, dev):
+        self.dev, self.lines = dev, []
+
+    def write(self, text):
+        self.lines.append((text.strip(), self.dev.raw_reads))
+
+    def flush(self):
+        pass
+
+
+def test_the_owner_is_told_to_hold_then_to_let_go_right_before_the_first_tick(tmp_path):
+    dev = MemoryDevices()           # held exactly at the start pose: zero state, no wheel drives
+    stream = ReadCountingStream(dev)
+    path = str(tmp_path / 'run.log')
+    run_session(dev, S.load(), S.fw_config(), VirtualClock(), log_path=path, duration_s=0.1, say=lambda m: None,
+                cues=OwnerCues(streams=[stream]))
+    settle, n = sample_counts(S.fw_config()['gyro_calibration'], S.load().ts_s)
+    assert stream.lines == [('tipbot: HOLD the robot still and upright: calibrating the gyro (0.2 s)', 0),
+                            ('tipbot: LET GO NOW: balancing', settle + n),
+                            ('tipbot: DONE: ran its duration (exit 0)', settle + n + 20)]
+    h, rows = read_log(path)
+    assert len(rows) == 20 and not rows[:, col_of(h, 'duty_r'):col_of(h, 'duty_3') + 1].any()   # no wheel ever drove
+
+
+def test_no_let_go_when_the_calibration_refuses(tmp_path):
+    dev = MemoryDevices()
+    calibration_source(dev, lambda i, used: (0, 20 * (i % 2)))
+    stream = ReadCountingStream(dev)
+    code, _ = run_session(dev, S.load(), S.fw_config(), VirtualClock(), say=lambda m: None,
+                          cues=OwnerCues(streams=[stream]))
+    assert code == 4 and [text for text, _ in stream.lines][1:] == ['tipbot: NOT STARTED: moved while calibrating (exit 4)']
+    assert stream.lines[0][0].startswith('tipbot: HOLD')
+
+
+def test_cues_go_to_stdout_and_stderr_once_each_or_once_for_one_terminal(tmp_path, monkeypatch):
+    out, err = open(str(tmp_path / 'out'), 'w'), open(str(tmp_path / 'err'), 'w')
+    monkeypatch.setattr('sys.stdout', out)
+    monkeypatch.setattr('sys.stderr', err)
+    OwnerCues().let_go()
+    same = open(str(tmp_path / 'out'), 'a')
+    monkeypatch.setattr('sys.stderr', same)
+    OwnerCues().let_go()
+    for f in (out, err, same):
+        f.close()
+    assert (tmp_path / 'out').read_text() == 'tipbot: LET GO NOW: balancing\n' * 2
+    assert (tmp_path / 'err').read_text() == 'tipbot: LET GO NOW: balancing\n'

@@ -104,12 +104,14 @@ def test_command_line_prints_table_2_plots_and_writes_params(logs, tmp_path, cap
     gains_dir = str(tmp_path / "gains")
     assert host_gains.main(["--params", out_params, "--out-dir", gains_dir]) == 0
     report = capsys.readouterr().out
-    for variant in ("paper", "physical"):
-        g = load_gains(os.path.join(gains_dir, variant + ".json"))     # the firmware's validation
+    # other parameters than params/robot.json: files of their own, never gains/<variant>.json
+    names = {v: host_gains.output_name(v, params_path=out_params) for v in ("paper", "physical")}
+    assert sorted(os.listdir(gains_dir)) == sorted(names.values()) and "physical.json" not in names.values()
+    for variant, name in names.items():
+        g = load_gains(os.path.join(gains_dir, name))     # the firmware's validation
         assert g.closed_loop_spectral_radius < 1.0
-        assert max(abs(e) for e in json.load(open(os.path.join(gains_dir, variant + ".json")))
-                   ["detector_eigenvalues"]) < 1.0
-    phys = json.load(open(os.path.join(gains_dir, "physical.json")))
+        assert max(abs(e) for e in json.load(open(os.path.join(gains_dir, name)))["detector_eigenvalues"]) < 1.0
+    phys = json.load(open(os.path.join(gains_dir, names["physical"])))
     assert phys["robust_to_models"]["stabilized"] is True, report
     assert phys["parameters"]["joint3_ke_v_s"] == pytest.approx(doc["parameters"]["joint3_ke_v_s"]["value"])
 

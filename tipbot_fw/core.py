@@ -14,8 +14,10 @@ first tick and whenever the reading changes (outside the ticks); start(enc, gyro
 for the first tick and step(...) for every later one, which write the tick's memory row (all
 but its two time columns) into buf at byte offset `offset` and return (duties, stop);
 restore(file_row, encoder_offsets) to continue from a logged row; `rows`, the row layout
-(mem_names, row_bytes, flags_index, columns, to_file()); angles(mem_row) for a stop message;
-header() for the log; limits; battery_v.
+(tipbot_fw.logfile: DetectorRows or KalmanRows), which row_layout() gives before the core is
+made (the log's header is written before the calibration); angles(mem_row) for a stop message;
+header() for the log; limits; battery_v; max_count_step, the largest change of a wheel's count
+from tick to tick the core takes (None: any), which the loop's plausibility check enforces.
 """
 from tipbot_fw.detector_core import DetectorCore
 from tipbot_fw.kalman import KalmanCore
@@ -23,6 +25,12 @@ from tipbot_fw.kalman import KalmanCore
 CORES = {'kalman': KalmanCore, 'detector': DetectorCore}
 
 
-def make_core(gains, config, counts_per_rot=(360, 360, 360, 360)):
-    """The core the configuration selects, for these gains."""
-    return CORES[config['estimator']](gains, config, counts_per_rot)
+def make_core(gains, config, counts_per_rot=(360, 360, 360, 360), layout=None):
+    """The core the configuration selects, for these gains (layout: its row_layout(), to share
+    the one the log was opened with)."""
+    return CORES[config['estimator']](gains, config, counts_per_rot, layout)
+
+
+def row_layout(gains, config):
+    """The log row of the core the configuration selects (tipbot_fw.logfile)."""
+    return CORES[config['estimator']].row_layout(gains, config)

@@ -57,23 +57,6 @@ def _picker(indices):
     return lambda y: tuple(y[i] for i in indices)
 
 
-class DetectorRows(object):
-    """The detector core's log row: logfile's MEM_NAMES in memory, logfile.COLUMNS in the file."""
-    mem_names = logfile.MEM_NAMES
-    row_bytes = logfile.MEM_ROW_BYTES
-    flags_index = logfile.MEM_FLAGS
-    columns = logfile.COLUMNS
-    column_names = logfile.COLUMN_NAMES
-
-    def __init__(self, polarity):
-        self.polarity = polarity
-
-    def to_file(self, mem_rows, t0=0.0):
-        return logfile.to_file_layout(mem_rows, self.polarity, t0)
-
-    col = staticmethod(logfile.col)
-
-
 class DetectorCore(object):
     """Per-tick computation; its whole state is recorded in each log row.
 
@@ -86,8 +69,14 @@ class DetectorCore(object):
     """
 
     estimator = 'detector'
+    max_count_step = None       # float64 arithmetic: no fixed-point range to keep
 
-    def __init__(self, gains, config, counts_per_rot=(360, 360, 360, 360)):
+    @staticmethod
+    def row_layout(gains, config):
+        """The log row of this core (before the core is made: the log's header)."""
+        return logfile.DetectorRows(motor_polarity(config))
+
+    def __init__(self, gains, config, counts_per_rot=(360, 360, 360, 360), layout=None):
         self.chain = None
         self.chain_args = (config, gains.ts_s)
         self.counts_per_rot = tuple(counts_per_rot)
@@ -116,7 +105,7 @@ class DetectorCore(object):
                        -lim['th3_rad'], lim['th3_rad'])
         self.battery_v = None
         self.x0 = None      # x~_0, for the log header
-        self.rows = DetectorRows(self.polarity)
+        self.rows = layout or self.row_layout(gains, config)
 
     def set_gyro_bias(self, gyro_bias_dps):
         """The calibrated bias (deg/s): the signal chain starts from it."""
@@ -124,9 +113,10 @@ class DetectorCore(object):
 
     def header(self):
         """What the log header needs to replay this core (docs/log-format.md)."""
-        return {'estimator': self.estimator,
-                'encoder_offsets': list(self.chain.offsets) if self.chain and self.chain.offsets else None,
-                'x_tilde_0': self.x0}
+        doc = self.rows.header()
+        doc.update({'encoder_offsets': list(self.chain.offsets) if self.chain and self.chain.offsets else None,
+                    'x_tilde_0': self.x0})
+        return doc
 
     def angles(self, mem_row):
         """(th1, th2, th3) of a memory row, for the stop message."""

@@ -6,7 +6,9 @@ only definition of the control period.
 
 A file carries two estimators: the paper's robust detector (Section 6; A, B, C, L1, L2, G_w,
 K, K_w in the file's state units), selectable for reproducing the paper, and the Kalman filter
-(the `kalman` block, always SI; the firmware's default), validated by _kalman_block below.
+(the `kalman` block, always SI; the firmware's default), read by _kalman_block below. Both are
+then held to physical bounds (check_physics: the tables SCALAR_BOUNDS, MATRIX_BOUNDS,
+STRUCTURE_CHECKS, one line per field or property, the Kalman block's among them).
 """
 import hashlib
 
@@ -84,14 +86,10 @@ def gains_from_dict(doc, source='<gains>', sha256=None, expected_ts_s=None, chec
         f.fail('model_variant', "is {!r}, expected 'paper' or 'physical'".format(doc['model_variant']))
     g.model_variant = doc['model_variant']
 
-    g.ts_s = f.number('ts_s', doc['ts_s'])
-    if not 0.0 < g.ts_s <= 1.0:
-        f.fail('ts_s', 'is {!r} s, expected a period in (0, 1] s'.format(g.ts_s))
+    g.ts_s = _scalar(f, doc, 'ts_s')
     if expected_ts_s is not None and abs(g.ts_s - expected_ts_s) > 1e-12 * expected_ts_s:
         f.fail('ts_s', 'is {!r} s, expected {!r} s'.format(g.ts_s, expected_ts_s))
-    g.u_max_v = f.number('u_max_v', doc['u_max_v'])
-    if not 0.0 < g.u_max_v <= 12.0:
-        f.fail('u_max_v', 'is {!r} V, expected a saturation in (0, 12] V'.format(g.u_max_v))
+    g.u_max_v = _scalar(f, doc, 'u_max_v')
 
     g.state_names = list(f.check('state_names', doc['state_names'], fields.strings(N_STATES)))
     g.input_names = list(f.check('input_names', doc['input_names'], fields.strings(N_INPUTS)))
@@ -103,6 +101,10 @@ def gains_from_dict(doc, source='<gains>', sha256=None, expected_ts_s=None, chec
             f.fail('state_units[{}]'.format(i), 'is {!r}, expected one of {}'.format(
                 unit, ', '.join(sorted(allowed))))
         scale.append(allowed[unit])
+    for i in range(5):      # a position and its rate in one length unit (m with m/s, cm with cm/s)
+        if units[i + 5] != units[i] + '/s':
+            f.fail('state_units[{}]'.format(i + 5), 'is {!r}, the rate of state {} in {!r} must be in {!r}'.format(
+                units[i + 5], g.state_names[i], units[i], units[i] + '/s'))
     g.state_units_file = units
     g.state_scale = np.array(scale)
     input_units = f.check('input_units', doc['input_units'], fields.strings(N_INPUTS))
@@ -160,8 +162,191 @@ def gains_from_dict(doc, source='<gains>', sha256=None, expected_ts_s=None, chec
     g.detector_spectral_radius = rho_det
     g.parameters_sha256 = doc['parameters_sha256']
     g.generator = doc['generator']
-    g.kalman = _kalman_block(doc['kalman'], f, g) if check_kalman else None
+    g.parameters = doc['parameters']
+    g.model_options = doc['model_options']
+    g.kalman = _kalman_block(doc['kalman'], f) if check_kalman else None
+    check_physics(g, f)
     return g
+
+
+# ---------------------------------------------------------------------------- physical bounds
+# Table-driven, so that new fields (another estimator's matrices) add a line, not code.
+# Scalars: field -> (lo, hi, unit, why), checked before anything uses them.
+SCALAR_BOUNDS = {
+    'ts_s': (0.001, 0.050, 's', 'a loop period of 1 to 50 ms (the brick cannot tick faster; slower does not balance)'),
+    'u_max_v': (1.0, 11.0, 'V', 'a motor voltage limit an EV3 battery can give (tipbot_fw.plausibility)'),
+}
+# Matrices, in SI after the unit conversion: field -> largest |entry| a design of this robot can
+# have, and why. 10 to 100 times what the committed designs have: a relabelled unit (x100) or a
+# scaled matrix shows up here, or in a structure check below.
+MATRIX_BOUNDS = {
+    'A': (100.0, 'a discrete model at 1-50 ms is close to the identity'),
+    'B': (10.0, 'one volt for one period moves no state that far'),
+    'E': (10.0, 'as B: the disturbances are input disturbances in volts'),
+    'K': (1e4, 'V per SI unit: more saturates the motors on one sensor count'),
+    'K_w': (5.0, 'V per V of estimated disturbance: more than compensating it'),
+    'L1': (100.0, 'the detector gains of a stable detector'),
+    'L2': (100.0, 'the detector gains of a stable detector'),
+    'G_w': (1e5, 'V per SI unit of innovation'),
+    # the Kalman block (SI), where the file has one (a host tool rebuilding it reads without)
+    'kalman.A': (100.0, 'as A: the augmented model adds constant states'),
+    'kalman.B': (10.0, 'as B'),
+    'kalman.L': (1e3, 'state change per unit of innovation in one period (the committed filters: below 70)'),
+    'kalman.K': (1e4, 'as K'),
+    'kalman.law.M': (1e5, 'the folded law: K and the filter times the wheel radius or 1/R_w (committed: below 500)'),
+    'kalman.law.state_bounds': (1e4, 'the fixed-point range of a state (m, rad, m/s, rad/s, V): larger leaves '
+                                'no resolution'),
+}
+# Structure checks: (field, function(g) -> problem or None). The Section 6 detector's disturbance
+# estimate inverts the input disturbance's effect (w^ = G_w C E w), and its L2 is E G_w.
+_STRUCTURE_RTOL = 1e-6
+
+
+def _disturbance_inverse(g):
+    err = np.max(np.abs(g.G_w.dot(g.C).dot(g.E)[np.ix_(ACTUATED_INPUTS, ACTUATED_INPUTS)] - np.eye(len(ACTUATED_INPUTS))))
+    if err > _STRUCTURE_RTOL:
+        return ('does not recover an input disturbance: G_w C E differs from the identity on the actuated inputs '
+                'by up to {:.3g} (a scaled G_w?)'.format(err))
+    return None
+
+
+def _detector_l2(g):
+    err = np.max(np.abs(g.L2 - g.E.dot(g.G_w)))
+    if err > _STRUCTURE_RTOL * max(1.0, float(np.max(np.abs(g.L2)))):
+        return 'is not E G_w (they differ by up to {:.3g}): L2 and G_w come from different designs'.format(err)
+    return None
+
+
+def _kalman_check(check):
+    """A structure check of the Kalman block: none for a file read without it."""
+    return lambda g: None if g.kalman is None else check(g, g.kalman)
+
+
+def _kalman_measures(g, k):
+    from tipbot_fw.kalman import measurement_matrix    # here: tipbot_fw.kalman imports this module
+    if np.max(np.abs(k.C - measurement_matrix(k.n, k.wheel_radius_m))) > _ZERO_RTOL * max(1.0, 1.0 / k.wheel_radius_m):
+        return ('must measure [d/R_w - th1 (2), th2, th3, th1_dot + gyro_bias] with R_w = '
+                'kalman.wheel_radius_m')
+    return None
+
+
+def _kalman_robot(g, k):
+    act = ACTUATED_INPUTS
+    if np.max(np.abs(k.A[:10, :10] - g.A)) > 1e-9 * max(1.0, float(np.max(np.abs(g.A)))) or \
+            np.max(np.abs(k.B[:10] - g.B[:, act])) > 1e-9 * max(1.0, float(np.max(np.abs(g.B)))):
+        return 'has a robot block that differs from the file\'s A, B (in SI)'
+    return None
+
+
+def _kalman_law(g, k):
+    """K_a = [K_act, K_w_act on the estimated disturbances, 0 on the bias]: the file's own law."""
+    act = ACTUATED_INPUTS
+    law = np.hstack([g.K[act, :], g.K_w[np.ix_(act, [act[i] for i in k.disturbance_inputs])], np.zeros((4, 1))])
+    err = np.abs(k.K - law)
+    if np.max(err) > 1e-9 * max(1.0, float(np.max(np.abs(law)))):
+        j = int(np.unravel_index(np.argmax(err), err.shape)[1])
+        return 'is not the file\'s law: its column {} ({}) differs from the file\'s {} (in SI)'.format(
+            j, k.state_names[j], 'K' if j < 10 else ('K_w' if j < k.n - 1 else 'zero of the gyro bias'))
+    return None
+
+
+def _kalman_stable(g, k):
+    rho = spectral_radius((np.eye(k.n) - k.L.dot(k.C)).dot(k.A))
+    if rho >= 1.0:
+        return 'gives an unstable filter: spectral radius of (I - L C) A is {:.6f} >= 1'.format(rho)
+    return None
+
+
+def _kalman_wheel(g, k):
+    rw = g.parameters.get('rw_m')
+    if fields.is_number(rw) and rw > 0 and abs(k.wheel_radius_m - rw) > _ZERO_RTOL * rw:
+        return 'is {!r} m, but the recorded parameters have rw_m = {!r} m'.format(k.wheel_radius_m, rw)
+    return None
+
+
+def _kalman_fold(g, k):
+    from tipbot_fw.kalman import fold
+    ref = fold(k.A, k.B, k.C, k.L, k.K, k.wheel_radius_m)
+    err = np.abs(k.law_M - ref) / np.maximum(1e-300, np.abs(ref).max(axis=1, keepdims=True))
+    if np.max(err) > _LAW_RTOL:
+        i, j = np.unravel_index(np.argmax(err), err.shape)
+        return 'is not the fold of kalman.A, B, C, L, K: entry [{}][{}] is {!r}, the fold gives {!r}'.format(
+            i, j, float(k.law_M[i, j]), float(ref[i, j]))
+    return None
+
+
+# The Section 6 detector's (above), then the Kalman filter's: what it measures, the same robot
+# and law as the file's own (so the design's closed loop is the stable A - B K checked above),
+# a stable filter, and the firmware's folded law made of exactly these matrices.
+STRUCTURE_CHECKS = [('G_w', _disturbance_inverse), ('L2', _detector_l2),
+                    ('kalman.wheel_radius_m', _kalman_check(_kalman_wheel)), ('kalman.C', _kalman_check(_kalman_measures)), ('kalman.A', _kalman_check(_kalman_robot)),
+                    ('kalman.K', _kalman_check(_kalman_law)), ('kalman.L', _kalman_check(_kalman_stable)),
+                    ('kalman.law.M', _kalman_check(_kalman_fold))]
+
+# The wheels in the model and in the recorded parameters: a wheel's back-EMF (and viscous
+# friction) acts on its own speed as its input does, scaled: in continuous time the column of
+# d_dot in A is -k times the wheel's input column of B, k = (Ke + beta Ra / Km) / R_w (beta only
+# with model_options.include_viscous_friction); in discrete time (A - I)[:, d_dot] - ts e_d =
+# -k B[:, u], exactly. In SI this holds only if the file's units are the ones its matrices were
+# made in: a state relabelled m -> cm moves k a hundredfold.
+_WHEELS = ((0, 5, 0, 'right_wheel'), (1, 6, 1, 'left_wheel'))
+_WHEEL_RTOL = 1e-3
+
+
+def _wheel_units(g):
+    p = g.parameters
+    names = ['rw_m'] + ['{}_{}'.format(r, n) for *_, r in _WHEELS for n in ('ke_v_s', 'beta_nm_s', 'ra_ohm', 'km_nm_a')]
+    if not all(fields.is_number(p.get(n)) and p[n] >= 0 for n in names) or not p['rw_m'] > 0:
+        return None     # no parameters recorded (a synthetic design): nothing to compare with
+    friction = g.model_options.get('include_viscous_friction', True) is not False
+    for pos, rate, inp, role in _WHEELS:
+        a = (g.A - np.eye(N_STATES))[:, rate].copy()
+        a[pos] -= g.ts_s
+        b = g.B[:, inp]
+        if not b.dot(b) > 0:
+            return 'has no effect of the {} input'.format(role)
+        k_fit = -a.dot(b) / b.dot(b)
+        km = p[role + '_km_nm_a']
+        k_par = (p[role + '_ke_v_s'] + (p[role + '_beta_nm_s'] * p[role + '_ra_ohm'] / km if friction and km > 0 else 0.0)) / p['rw_m']
+        if not abs(k_fit - k_par) <= _WHEEL_RTOL * abs(k_par):
+            return ('disagree with the matrices: in SI the {} back-EMF is {:.4g} V s/m by the matrices and {:.4g} by the '
+                    'recorded parameters (a unit relabelled without converting the matrices?)'.format(role, k_fit, k_par))
+    return None
+
+
+def _scalar(f, doc, key):
+    lo, hi, unit, why = SCALAR_BOUNDS[key]
+    v = f.number(key, doc[key])
+    if not lo <= v <= hi:
+        f.fail(key, 'is {!r} {}, expected {} to {} {}: {}'.format(v, unit, lo, hi, unit, why))
+    return v
+
+
+def check_physics(g, f):
+    """The bounds and structure checks above on validated Gains g (SI); f: the file's Fields."""
+    problem = _wheel_units(g)
+    if problem:
+        f.fail('state_units', problem)
+    for key, check in STRUCTURE_CHECKS:
+        problem = check(g)
+        if problem:
+            f.fail(key, problem)
+    for key, (bound, why) in sorted(MATRIX_BOUNDS.items()):
+        value = _matrix(g, key)
+        if value is None:
+            continue
+        largest = float(np.max(np.abs(value)))
+        if not largest <= bound:
+            f.fail(key, 'has an entry of {:.4g} (in SI), beyond {:g}: {}'.format(largest, bound, why))
+
+
+def _matrix(g, key):
+    """The SI matrix a MATRIX_BOUNDS key names (None: a Kalman field of a file read without it)."""
+    if key.startswith('kalman.'):
+        if g.kalman is None:
+            return None
+        return getattr(g.kalman, _KALMAN_ATTRIBUTES.get(key[len('kalman.'):], key[len('kalman.'):]))
+    return getattr(g, key)
 
 
 def load_gains(path, expected_ts_s=None):
@@ -184,16 +369,17 @@ _MEASUREMENTS = (('phi_r', 'rad'), ('phi_l', 'rad'), ('th2', 'rad'), ('th3', 'ra
 # The folded law must equal the fold of the block's matrices to this fraction of its row's
 # largest entry (the file has 12 significant digits; the fold sums a few dozen products).
 _LAW_RTOL = 1e-8
+# MATRIX_BOUNDS' names of the block's fields -> KalmanGains attributes
+_KALMAN_ATTRIBUTES = {'law.M': 'law_M', 'law.state_bounds': 'state_bounds'}
 
 
 class KalmanGains(object):
     """The validated `kalman` block: n, state_names, state_units, wheel_radius_m, A (n x n),
-    B (n x 4), C (5 x n), L (n x 5), K (4 x n), law_M ((4 + n) x (4 + n + 7)), state_bounds,
-    filter_spectral_radius."""
+    B (n x 4), C (5 x n), L (n x 5), K (4 x n), law_M ((4 + n) x (4 + n + 7)), state_bounds."""
 
 
-def _kalman_block(doc, f, g):
-    from tipbot_fw.kalman import fold, measurement_matrix    # here: tipbot_fw.kalman imports this module
+def _kalman_block(doc, f):
+    """The `kalman` block's fields (names, units, shapes); its structure is in STRUCTURE_CHECKS."""
     f.check('kalman', doc, fields.obj)
     f.require(doc, KALMAN_KEYS, 'kalman.')
     k = KalmanGains()
@@ -215,7 +401,7 @@ def _kalman_block(doc, f, g):
             doc['measurement_units'] != [u for _, u in _MEASUREMENTS]:
         f.fail('kalman.measurement_names', 'must be {} (units {})'.format(
             [m for m, _ in _MEASUREMENTS], [u for _, u in _MEASUREMENTS]))
-    k.wheel_radius_m = f.number('kalman.wheel_radius_m', doc['wheel_radius_m'], lo=0, hi=0.2)
+    k.wheel_radius_m = f.number('kalman.wheel_radius_m', doc['wheel_radius_m'], lo=0.005, hi=0.1, lo_open=False)
     shapes = (('A', n, n), ('B', n, 4), ('C', 5, n), ('L', n, 5), ('K', 4, n))
     for key, rows, cols in shapes:
         setattr(k, key, np.array(f.check('kalman.' + key, doc[key], fields.matrix(rows, cols)), dtype=float))
@@ -226,27 +412,4 @@ def _kalman_block(doc, f, g):
     k.state_bounds = f.check('kalman.law.state_bounds', law['state_bounds'], fields.numbers(n))
     if min(k.state_bounds) <= 0:
         f.fail('kalman.law.state_bounds', 'must be positive, got {!r}'.format(k.state_bounds))
-    # the measurement model the firmware folds in (wheel encoders relative to link 1)
-    c = measurement_matrix(n, k.wheel_radius_m)
-    if np.max(np.abs(k.C - c)) > _ZERO_RTOL * max(1.0, 1.0 / k.wheel_radius_m):
-        f.fail('kalman.C', 'must measure [d/R_w - th1 (2), th2, th3, th1_dot + gyro_bias] with R_w = '
-               'kalman.wheel_radius_m')
-    # the same robot and law as the file's own model
-    act = ACTUATED_INPUTS
-    scale = max(1.0, float(np.max(np.abs(g.A))))
-    if np.max(np.abs(k.A[:10, :10] - g.A)) > 1e-9 * scale or \
-            np.max(np.abs(k.B[:10] - g.B[:, act])) > 1e-9 * max(1.0, float(np.max(np.abs(g.B)))):
-        f.fail('kalman.A', 'its robot block differs from the file\'s A, B (in SI)')
-    if np.max(np.abs(k.K[:, :10] - g.K[act, :])) > 1e-9 * max(1.0, float(np.max(np.abs(g.K)))):
-        f.fail('kalman.K', 'its state columns differ from the file\'s K (in SI)')
-    k.filter_spectral_radius = spectral_radius((np.eye(n) - k.L.dot(k.C)).dot(k.A))
-    if k.filter_spectral_radius >= 1.0:
-        f.fail('kalman.L', 'gives an unstable filter: spectral radius of (I - L C) A is {:.6f} >= 1'.format(
-            k.filter_spectral_radius))
-    ref = fold(k.A, k.B, k.C, k.L, k.K, k.wheel_radius_m)
-    err = np.abs(k.law_M - ref) / np.maximum(1e-300, np.abs(ref).max(axis=1, keepdims=True))
-    if np.max(err) > _LAW_RTOL:
-        i, j = np.unravel_index(np.argmax(err), err.shape)
-        f.fail('kalman.law.M', 'is not the fold of kalman.A, B, C, L, K: entry [{}][{}] is {!r}, the fold '
-               'gives {!r}'.format(i, j, float(k.law_M[i, j]), float(ref[i, j])))
     return k

@@ -50,6 +50,7 @@ from tipbot_fw import ev3io, logfile
 from tipbot_fw.clock import MonotonicClock
 from tipbot_fw.config import ConfigError, load_config
 from tipbot_fw.console import say
+from tipbot_fw.plausibility import check_battery
 from tipbot_fw.safety import (EXIT_DEVICES, EXIT_ERROR, EXIT_INTERRUPT, EXIT_INVALID, EXIT_OK,
                               EXIT_REFUSED, DeviceFailure, LowBattery, SafetyStop, run_guarded)
 
@@ -305,6 +306,7 @@ def run_identify(motor, clock, duty=DEFAULTS['duty'], seconds=DEFAULTS['seconds'
         except (OSError, ValueError) as e:
             raise DeviceFailure('battery read failed: {}'.format(e))
         header['battery_v_start'] = bv
+        check_battery(bv)
         if min_battery_v is not None and bv < min_battery_v:
             raise LowBattery('battery at {:.2f} V is below limits.min_battery_v = {} V: charge it'.format(
                 bv, min_battery_v))
@@ -417,7 +419,8 @@ def add_arguments(sp):
                     help='shortest time between two position reads (default 0: as fast as possible)')
     sp.add_argument('--yes', action='store_true', help='do not ask for confirmation')
     sp.add_argument('--log', metavar='FILE',
-                    help='identify log (default identify-PORT-YYYYmmdd-HHMMSS.log in the current directory)')
+                    help='identify log (default identify-PORT-YYYYmmdd-HHMMSS.log in logs/ if the current '
+                    'directory holds tipbot_fw/, else in the current directory)')
 
 
 def _role_of(config, port):
@@ -478,7 +481,7 @@ def main_identify(args, say=say, stdin=None, clock=None, io=os):
         except KeyboardInterrupt:
             say('interrupted: the motor was not driven')
             return EXIT_INTERRUPT
-        log_path = args.log or time.strftime('identify-{}-%Y%m%d-%H%M%S.log'.format(motor.port))
+        log_path = args.log or logfile.default_path('identify-' + motor.port)
         role = _role_of(config, motor.port)
         extra = {'role': role, 'sysfs_path': motor.path,
                  'expected_driver': config['drivers'].get(role) if role else None}

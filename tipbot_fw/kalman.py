@@ -43,7 +43,7 @@ import numpy as np
 from tipbot_fw import fixedpoint as fx
 from tipbot_fw import logfile
 from tipbot_fw.config import motor_polarity
-from tipbot_fw.safety import DeviceFailure
+from tipbot_fw.plausibility import BATTERY_MAX_V, BATTERY_MIN_V
 
 FALL = logfile.FLAG_BITS['fall']
 JOINT_LIMIT = logfile.FLAG_BITS['joint_limit']
@@ -52,19 +52,24 @@ N_U = 4
 N_MEAS = 5
 N_IN = 7                 # the counts' changes dcount_r, dcount_l; the counts from their zeros
                          # count_r, count_l, count_2, count_3; the gyro's raw rate
-# Bounds of the integer inputs (fixed-point ranges): duties; a wheel's count change in one tick
-# (a motor turns at most ~30 rad/s, 0.15 rad = 9 counts per 5 ms: more is a failed read);
-# a wheel's count from its zero (2^24 counts, 46,600 turns, 10 km: more than a charge of the
-# battery at full speed); a joint's count from its zero (the joint limit stops the run first,
-# checked before the product); the gyro's raw int16 rate.
+# Bounds of the integer inputs (fixed-point ranges), and who keeps each: the duties (the
+# saturation); a wheel's count change in one tick (the control loop's plausibility check,
+# tipbot_fw.plausibility.EncoderBound with max_step = MAX_COUNT_STEP: a motor turns at most
+# ~30 rad/s, 0.15 rad = 9 counts per 5 ms, and the check refuses a jump beyond the hardware's
+# reach, at most this whatever the period or a late tick: more is a failed read); a wheel's count
+# from its zero (2^24 counts, 46,600 turns, 10 km: more than a charge of the battery at full
+# speed); a joint's count from its zero (the joint limit stops the run first, checked here
+# before the product); the gyro's raw int16 rate (the loop's check: +-440 deg/s).
 DUTY_BOUND = 100
 WHEEL_STEP_BOUND = 2 ** 10
+MAX_COUNT_STEP = WHEEL_STEP_BOUND - 1
 WHEEL_COUNT_BOUND = 2 ** 24
 JOINT_COUNT_BOUND = 2 ** 10
 GYRO_BOUND = 2 ** 15
 INPUT_BOUNDS = (WHEEL_STEP_BOUND,) * 2 + (WHEEL_COUNT_BOUND,) * 2 + (JOINT_COUNT_BOUND,) * 2 + (GYRO_BOUND,)
-# Battery range the row exponents are chosen for (the duty scaling depends on it).
-BATTERY_RANGE_V = (4.0, 12.0)
+# Battery range the row exponents are chosen for (the duty scaling depends on it): what an EV3
+# battery can read; the loop refuses any other reading before it reaches set_battery.
+BATTERY_RANGE_V = (BATTERY_MIN_V, BATTERY_MAX_V)
 LAW_COLUMNS = ('u_r', 'u_l', 'u_th2', 'u_th3')      # then xi_*, dphi_r, dphi_l, then m
 MEASUREMENTS = ('phi_r', 'phi_l', 'th2', 'th3', 'gyro')
 
@@ -117,6 +122,12 @@ def fold(a, b, c, gain, k, rw_m):
     return np.vstack([out, state])
 
 
+def wheel_m_per_count(rw_m, polarity, counts_per_rot):
+    """Metres a wheel's count moves its d (R_w times the signed angle of a count): the one
+    expression of it, so the brick, the replay and the telemetry decoder agree to the bit."""
+    return rw_m * polarity * 2.0 * math.pi / counts_per_rot
+
+
 def reference_step(kal, xf, u_applied, m):
     """One tick written out (x^_{k-1}, u_{k-1} volts, m_k SI) -> (x^_k, u_k unsaturated)."""
     xp = kal.A.dot(xf) + kal.B.dot(u_applied)
@@ -124,68 +135,26 @@ def reference_step(kal, xf, u_applied, m):
     return xf1, -kal.K.dot(xf1)
 
 
-class KalmanRows(object):
-    """The log row of a Kalman tick (docs/log-format.md): what the brick packs, and the file
-    columns made of it at writing time."""
-
-    def __init__(self, core):
-        self.core = core
-        n = core.n
-        self.mem_names = (['t_start', 't_written', 'battery_v', 'flags', 'gyro_angle']
-                          + ['duty_r', 'duty_l', 'duty_2', 'duty_3'] + ['xi_' + s for s in core.state_names]
-                          + ['dcount_r', 'dcount_l', 'rel_r', 'rel_l', 'rel_2', 'rel_3', 'gyro_rate'])
-        self.row_bytes = 8 * len(self.mem_names)
-        self.flags_index = 3
-        self.ints_start = 5
-        self.columns = self.columns_for(core.state_names, core.state_units)
-        self.column_names = [c[0] for c in self.columns]
-        self.n = n
-
-    @staticmethod
-    def columns_for(state_names, state_units):
-        """(name, unit) of the file's columns for the filter's states."""
-        return ([('time_s', 's'), ('tick_s', 's'), ('enc_r', 'count'), ('enc_l', 'count'),
-                 ('enc_2', 'count'), ('enc_3', 'count'), ('gyro_angle', 'deg'), ('gyro_rate', 'deg/s'),
-                 ('battery_v', 'V'), ('flags', 'bits'),
-                 ('duty_r', '%'), ('duty_l', '%'), ('duty_2', '%'), ('duty_3', '%')]
-                + [('xi_' + s, u) for s, u in zip(state_names, state_units)])
-
-    def to_file(self, mem_rows, t0=0.0):
-        """In-memory rows (a float64 view, k x len(mem_names)) -> file rows (float64)."""
-        mem = np.ascontiguousarray(mem_rows, dtype='<f8')
-        ints = mem[:, self.ints_start:].view('<i8')
-        n = self.n
-        out = np.zeros((len(mem), len(self.columns)))
-        out[:, 0] = mem[:, 0] - t0
-        out[:, 1] = mem[:, 1] - mem[:, 0]
-        zeros = self.core.offsets or (0, 0, 0, 0)
-        for j in range(4):
-            out[:, 2 + j] = ints[:, 4 + n + 2 + j] + zeros[j]
-        out[:, 6] = mem[:, 4]
-        out[:, 7] = ints[:, 4 + n + 6]
-        out[:, 8] = mem[:, 2]
-        out[:, 9] = mem[:, 3]
-        out[:, 10:14] = ints[:, 0:4]
-        out[:, 14:14 + n] = ints[:, 4:4 + n] * self.core.state_lsb[None, :]
-        return out
-
-    def col(self, name):
-        return self.column_names.index(name)
-
-
 class KalmanCore(object):
     """Per-tick computation of the Kalman law; its whole state is in each log row.
 
     Construct, then set_gyro_bias() (after calibration), set_battery() before the first tick
     and whenever the reading changes (outside the ticks), start() for the first tick, step()
-    for every later one. Both write the tick's memory row (KalmanRows) except its time
-    columns into the bytearray buf at byte offset `offset` and return (duties, stop): duties
-    for Devices.write_duties, stop nonzero (FALL / JOINT_LIMIT) if the motors must be stopped
-    now instead.
+    for every later one. Both write the tick's memory row (tipbot_fw.logfile.KalmanRows) except
+    its time columns into the bytearray buf at byte offset `offset` and return (duties, stop):
+    duties for Devices.write_duties, stop nonzero (FALL / JOINT_LIMIT) if the motors must be
+    stopped now instead. The wheel counts' change from tick to tick must stay within
+    +-MAX_COUNT_STEP (the loop's plausibility check keeps it).
     """
     estimator = 'kalman'
+    max_count_step = MAX_COUNT_STEP
 
-    def __init__(self, gains, config, counts_per_rot=(360, 360, 360, 360)):
+    @staticmethod
+    def row_layout(gains, config):
+        """The log row of this core for these gains (before the core is made: the log's header)."""
+        return logfile.KalmanRows.for_gains(gains.kalman)
+
+    def __init__(self, gains, config, counts_per_rot=(360, 360, 360, 360), layout=None):
         kal = gains.kalman
         self.gains = gains
         self.kal = kal
@@ -232,7 +201,10 @@ class KalmanCore(object):
         self.rshift = np.right_shift
         self._in_off = 8 * (N_U + n)
         self._row_ints = 8 * (N_U + n + N_IN)
-        self.rows = KalmanRows(self)
+        self.rows = layout or self.row_layout(gains, config)
+        assert self.rows.q == self.q
+        # metres of wheel travel per count (the wheel's angle from its zero in x^ = xi + T m)
+        self.wheel_m = [wheel_m_per_count(kal.wheel_radius_m, self.polarity[i], self.counts_per_rot[i]) for i in (0, 1)]
         lim = config['limits']
         self.limits = (lim['th1_rad'], lim['th2_rad'], lim['th3_rad'])
         t1 = fx.round_half_up(lim['th1_rad'], self.q[2])
@@ -272,8 +244,8 @@ class KalmanCore(object):
     def set_battery(self, battery_v):
         """Rebuild the integer matrix for this battery voltage (module docstring)."""
         lo, hi = BATTERY_RANGE_V
-        if not lo <= battery_v <= hi:
-            raise DeviceFailure('battery reading {} V is outside the {}..{} V the control law is scaled for'.format(
+        if not lo <= battery_v <= hi:      # the callers check (plausibility.check_battery): a guard
+            raise ValueError('battery reading {} V is outside the {}..{} V the control law is scaled for'.format(
                 battery_v, lo, hi))
         self.battery_v = battery_v
         self.dlim = min(100, int(round(self.u_max_v * 100.0 / battery_v)))
@@ -314,7 +286,7 @@ class KalmanCore(object):
     def start(self, enc, gyro, buf, offset):
         """First tick: the counts are the encoder zeros; xi_0 = x^_0 (the readings are zero
         relative to themselves), u_0 = -K x^_0 rounded to duties (Python floats, fixed order)."""
-        self.offsets = (enc[0], enc[1], enc[2], enc[3])
+        self.offsets = self.rows.offsets = (enc[0], enc[1], enc[2], enc[3])
         self.prev = (0, 0)
         x0 = [float(v) for v in self.initial_state()]
         self.x0 = x0
@@ -341,12 +313,8 @@ class KalmanCore(object):
         r3 = e3 - z3
         p0, p1 = self.prev
         self.prev = (r0, r1)
-        d0 = r0 - p0
+        d0 = r0 - p0        # within +-MAX_COUNT_STEP: the loop's plausibility check
         d1 = r1 - p1
-        lim = WHEEL_STEP_BOUND
-        if not (-lim < d0 < lim and -lim < d1 < lim):
-            raise DeviceFailure('a wheel encoder jumped by {} counts in one tick: a failed read'.format(
-                d0 if not -lim < d0 < lim else d1))
         j2lo, j2hi, j3lo, j3hi = self.joint_bounds
         _IN.pack_into(self.v_bytes, self._in_off, d0, d1, r0, r1, r2, r3, gyro[1])
         if not (j2lo <= r2 <= j2hi and j3lo <= r3 <= j3hi):
@@ -395,9 +363,8 @@ class KalmanCore(object):
         """x^_k after the last tick (SI floats): xi plus R_w times the wheel angles."""
         n = self.n
         xi = [int(v) * l for v, l in zip(self.v[N_U:N_U + n], self.state_lsb)]
-        rw = self.kal.wheel_radius_m
         for i in (0, 1):
-            xi[i] += rw * self.rad_per_count[i] * int(self.v[N_U + n + 2 + i])
+            xi[i] += self.wheel_m[i] * int(self.v[N_U + n + 2 + i])
         return xi
 
     @property
@@ -415,15 +382,16 @@ class KalmanCore(object):
 
     def header(self):
         """What the log header needs to replay this core (docs/log-format.md)."""
-        return {'estimator': self.estimator, 'encoder_offsets': list(self.offsets) if self.offsets else None,
-                'x_hat_0': self.x0, 'state_names': self.state_names, 'state_units': self.state_units,
-                'fixed_point': {'state_exponents': self.q, 'row_exponents': self.row_exp,
-                                'shifts': self.shift_list}}
+        doc = self.rows.header()
+        doc.update({'encoder_offsets': list(self.offsets) if self.offsets else None, 'x_hat_0': self.x0,
+                    'fixed_point': {'state_exponents': self.q, 'row_exponents': self.row_exp,
+                                    'shifts': self.shift_list}})
+        return doc
 
     def restore(self, file_row, encoder_offsets):
         """State as right after the tick of a file row (a ring-buffer log's first kept row)."""
         r = self.rows
-        self.offsets = tuple(int(v) for v in encoder_offsets)
+        self.offsets = self.rows.offsets = tuple(int(v) for v in encoder_offsets)
         rel = [int(file_row[r.col(c)]) - z for c, z in zip(('enc_r', 'enc_l', 'enc_2', 'enc_3'), self.offsets)]
         self.prev = (rel[0], rel[1])
         duties = [int(file_row[r.col(c)]) for c in ('duty_r', 'duty_l', 'duty_2', 'duty_3')]

@@ -1,26 +1,31 @@
-"""Run log: per-tick rows in a preallocated buffer, written once at the end (docs/log-format.md).
+"""Run log: the rows of each control core (their layout in memory and the columns of the file),
+per-tick rows in a preallocated ring, written to the file in chunks in the loop's slack
+(docs/log-format.md). The container (records, CRCs, reading a log cut short) is
+tipbot_fw.logcontainer.
+
+Two row layouts, one per core (tipbot_fw.core): DetectorRows (the paper's detector: the floats
+the core computes) and KalmanRows (the Kalman core: raw readings and the integer state, packed
+once). Each has its memory row (mem_names, row_bytes, flags_index), the file's columns and
+to_file(), which makes the second from the first; the file stores the memory rows as they are
+and read_log() converts them, knowing the layout from the log's header (layout_from_header).
 
 Python 3.5-safe; the reader (read_log) is what host tools use.
 """
-import json
 import os
 import struct
-import zlib
+import time
 
 import numpy as np
 
-MAGIC = b'TIPBLOG\n'
-FORMAT_VERSION = 1
-_COUNTS = struct.Struct('<IIIQ')   # format_version, header_len, ncols, nrows
-_CRC = struct.Struct('<I')
+from tipbot_fw import fixedpoint, logcontainer
+from tipbot_fw.logcontainer import FORMAT_VERSION, MAGIC, LogFormatError, LogWriteError, LogWriter  # noqa: F401
 
 STATE_NAMES = ('d_r', 'd_l', 'th1', 'th2', 'th3', 'd_r_dot', 'd_l_dot', 'th1_dot', 'th2_dot', 'th3_dot')
 STATE_UNITS = ('m', 'm', 'rad', 'rad', 'rad', 'm/s', 'm/s', 'rad/s', 'rad/s', 'rad/s')
 INPUT_NAMES = ('r', 'l', 'th1', 'th2', 'th3')
 ACTUATED_NAMES = ('r', 'l', 'th2', 'th3')
 
-# The detector core's layout (tipbot_fw.detector_core; the Kalman core's is tipbot_fw.kalman.KalmanRows).
-# File layout (docs/log-format.md).
+# The detector core's file layout (docs/log-format.md).
 COLUMNS = ([('time_s', 's'), ('tick_s', 's'),
             ('enc_r', 'count'), ('enc_l', 'count'), ('enc_2', 'count'), ('enc_3', 'count'),
             ('gyro_angle', 'deg'), ('gyro_rate', 'deg/s'),
@@ -102,17 +107,151 @@ def to_file_layout(mem_rows, polarity, t0=0.0):
     return out
 
 
-class LogBuffer(object):
-    """Preallocated rows; a ring when a run outlives it (the newest rows are kept).
+class DetectorRows(object):
+    """The detector core's log row (tipbot_fw.detector_core): MEM_NAMES in memory, COLUMNS in the
+    file (to_file_layout)."""
+    estimator = 'detector'
+    mem_names = MEM_NAMES
+    row_bytes = MEM_ROW_BYTES
+    flags_index = MEM_FLAGS
+    columns = COLUMNS
+    column_names = COLUMN_NAMES
+    col = staticmethod(col)
 
-    `rows` is the core's row layout (tipbot_fw.core: row_bytes, flags_index, columns,
-    to_file()); tick k's row is packed (struct, little-endian, in-memory layout: the first two
-    slots the tick's clock readings, TIMES) into the bytearray `data` at byte offset
-    (k % capacity) * rows.row_bytes; `mem` is a float64 view of the same memory. The loop keeps
-    `count` (rows ever stored).
+    def __init__(self, polarity):
+        self.polarity = tuple(polarity)
+
+    def header(self):
+        """What a reader needs to know of this layout, for the log's header."""
+        return {'estimator': self.estimator}
+
+    @classmethod
+    def from_header(cls, header):
+        return cls([header['config']['polarity'][r] for r in ('right_wheel', 'left_wheel', 'joint2', 'joint3')])
+
+    def to_file(self, mem_rows, t0=0.0):
+        return to_file_layout(mem_rows, self.polarity, t0)
+
+
+def kalman_columns(state_names, state_units):
+    """(name, unit) of the Kalman core's file columns for the filter's states."""
+    return ([('time_s', 's'), ('tick_s', 's'), ('enc_r', 'count'), ('enc_l', 'count'),
+             ('enc_2', 'count'), ('enc_3', 'count'), ('gyro_angle', 'deg'), ('gyro_rate', 'deg/s'),
+             ('battery_v', 'V'), ('flags', 'bits'),
+             ('duty_r', '%'), ('duty_l', '%'), ('duty_2', '%'), ('duty_3', '%')]
+            + [('xi_' + s, u) for s, u in zip(state_names, state_units)])
+
+
+class KalmanRows(object):
+    """The Kalman core's log row (tipbot_fw.kalman; docs/log-format.md). In memory: the two clock
+    readings, battery_v, flags, gyro_angle as float64, then int64s: the duties, the carried state
+    xi (xi_j 2^q_j: q, the state_exponents of tipbot_fw.fixedpoint) and the product's inputs
+    (the wheels' count changes, the four counts from their zeros, the gyro's raw rate): one copy
+    of the core's integer vector. In the file: the raw counts, the duties and xi in SI.
+
+    offsets: the encoder zeros (the first tick's counts), set by the core's first tick or read
+    from the log; the file's enc_* columns are the counts from them plus them."""
+    estimator = 'kalman'
+    flags_index = 3
+    ints_start = 5
+    n_inputs = 7
+
+    def __init__(self, state_names, state_units, state_exponents, offsets=None):
+        self.state_names = list(state_names)
+        self.state_units = list(state_units)
+        self.n = n = len(self.state_names)
+        self.q = [int(e) for e in state_exponents]
+        if len(self.q) != n:
+            raise ValueError('{} state exponents for {} states'.format(len(self.q), n))
+        self.state_lsb = np.array([2.0 ** -e for e in self.q])
+        self.mem_names = (['t_start', 't_written', 'battery_v', 'flags', 'gyro_angle']
+                          + ['duty_r', 'duty_l', 'duty_2', 'duty_3'] + ['xi_' + s for s in self.state_names]
+                          + ['dcount_r', 'dcount_l', 'rel_r', 'rel_l', 'rel_2', 'rel_3', 'gyro_rate'])
+        self.row_bytes = 8 * len(self.mem_names)
+        self.columns = kalman_columns(self.state_names, self.state_units)
+        self.column_names = [c[0] for c in self.columns]
+        self.offsets = offsets
+
+    @classmethod
+    def for_gains(cls, kal):
+        """The layout of a gains file's Kalman block (tipbot_fw.gains.KalmanGains)."""
+        return cls(kal.state_names, kal.state_units, fixedpoint.state_exponents(kal.state_bounds))
+
+    def header(self):
+        """What a reader needs to know of this layout, for the log's header (the encoder zeros
+        follow with the first rows)."""
+        return {'estimator': self.estimator, 'state_names': self.state_names, 'state_units': self.state_units,
+                'fixed_point': {'state_exponents': self.q}}
+
+    @classmethod
+    def from_header(cls, header):
+        names, units, q = header['state_names'], header['state_units'], header['fixed_point']['state_exponents']
+        offsets = header.get('encoder_offsets')
+        if not (isinstance(names, list) and isinstance(units, list) and len(names) == len(units)
+                and all(isinstance(s, str) for s in names + units)):
+            raise ValueError('state_names and state_units must be lists of names of the same length')
+        if not (isinstance(q, list) and all(isinstance(e, int) and -64 <= e <= 128 for e in q)):
+            raise ValueError('fixed_point.state_exponents must be a list of small integers')
+        if offsets is not None and not (isinstance(offsets, list) and len(offsets) == 4
+                                        and all(isinstance(z, int) and abs(z) < 2 ** 53 for z in offsets)):
+            raise ValueError('encoder_offsets must be 4 integers')
+        return cls(names, units, q, offsets)
+
+    def to_file(self, mem_rows, t0=0.0):
+        """In-memory rows (a float64 view, k x len(mem_names)) -> file rows (float64)."""
+        mem = np.ascontiguousarray(mem_rows, dtype='<f8')
+        ints = mem[:, self.ints_start:].view('<i8')
+        n = self.n
+        out = np.zeros((len(mem), len(self.columns)))
+        out[:, 0] = mem[:, 0] - t0
+        out[:, 1] = mem[:, 1] - mem[:, 0]
+        zeros = self.offsets or (0, 0, 0, 0)
+        for j in range(4):
+            out[:, 2 + j] = ints[:, 4 + n + 2 + j] + zeros[j]
+        out[:, 6] = mem[:, 4]
+        out[:, 7] = ints[:, 4 + n + 6]
+        out[:, 8] = mem[:, 2]
+        out[:, 9] = mem[:, 3]
+        out[:, 10:14] = ints[:, 0:4]
+        out[:, 14:14 + n] = ints[:, 4:4 + n] * self.state_lsb[None, :]
+        return out
+
+    def col(self, name):
+        return self.column_names.index(name)
+
+
+LAYOUTS = {'detector': DetectorRows, 'kalman': KalmanRows}
+
+
+def layout_from_header(header):
+    """The row layout of a run log's header (a log without `estimator`, of a firmware before the
+    Kalman core, has the detector's). KeyError, TypeError, ValueError if the header lacks it."""
+    return LAYOUTS[header.get('estimator', 'detector')].from_header(header)
+
+
+# Rows a chunk of the file holds: written in the slack of one tick every CHUNK_ROWS ticks
+# (0.25 s at 5 ms), so a crash or a power cut loses at most that much of what the file had
+# been sent; the ring in memory holds RING_CHUNKS chunks, so a chunk may wait for a tick with
+# slack (tipbot_fw.loop) without being overwritten.
+CHUNK_ROWS = 50
+RING_CHUNKS = 8
+
+
+class LogBuffer(object):
+    """Preallocated rows; a ring when a run outlives it.
+
+    `rows` is the core's row layout (DetectorRows or KalmanRows); tick k's row is packed
+    (struct, little-endian, in-memory layout: the first two slots the tick's clock readings,
+    TIMES) into the bytearray `data` at byte offset (k % capacity) * rows.row_bytes; `mem` is a
+    float64 view of the same memory. The loop keeps `count` (rows ever stored).
+
+    With a ``writer`` (a tipbot_fw.logcontainer.LogWriter), the rows go to the file in chunks:
+    flush() writes the rows not yet written (at most ``max_rows`` in all: the rest are counted,
+    not recorded), so the ring needs only a few chunks; without one the ring keeps the newest
+    ``capacity`` rows (bench, tests).
     """
 
-    def __init__(self, capacity, rows):
+    def __init__(self, capacity, rows, writer=None, max_rows=None, chunk_rows=CHUNK_ROWS):
         self.capacity = int(capacity)
         self.rows = rows
         self.row_bytes = rows.row_bytes
@@ -120,6 +259,45 @@ class LogBuffer(object):
         self.mem = np.frombuffer(self.data, dtype='<f8').reshape(self.capacity, self.row_bytes // 8)
         self.count = 0
         self.t0 = 0.0       # the clock at the start of the first tick (set by the loop)
+        self.writer = writer
+        self.max_rows = max_rows
+        self.chunk_rows = chunk_rows
+        self.flushed = 0    # rows sent to the writer (or dropped beyond max_rows)
+        self.first_info = None  # () -> dict for an INFO record before the first rows (the zeros)
+
+    @classmethod
+    def for_file(cls, writer, rows, max_rows, chunk_rows=CHUNK_ROWS):
+        return cls(chunk_rows * RING_CHUNKS, rows, writer, max_rows, chunk_rows)
+
+    def flush(self, end=None):
+        """Write the rows stored (``end`` of them: the loop's count during a run; else count) and
+        not yet written, outside the ticks. Never raises."""
+        end = self.count if end is None else end
+        start = max(self.flushed, end - self.capacity)
+        if self.writer is None or end <= start:
+            return
+        stop = end if self.max_rows is None else min(end, self.max_rows)
+        if self.first_info is not None:
+            info = self.first_info()
+            info['log_t0'] = self.t0
+            self.writer.info(info)
+            self.first_info = None
+        if stop > start:
+            self.writer.rows_bytes(*self._block(start, stop))
+        self.flushed = end
+
+    def _block(self, start, stop):
+        """The rows start..stop as the file stores them: the memory layout's bytes as they are
+        (no conversion on the brick: read_log derives the file layout)."""
+        p, q = (start % self.capacity) * self.row_bytes, (stop - start) * self.row_bytes
+        end = p + q
+        if end <= len(self.data):
+            return self.data[p:end], stop - start
+        return self.data[p:] + self.data[:end - len(self.data)], stop - start
+
+    def not_recorded(self):
+        """Rows stored but beyond max_rows (not in the file)."""
+        return 0 if self.max_rows is None else max(0, self.count - self.max_rows)
 
     def first_tick(self):
         """Index of the tick of the oldest row kept."""
@@ -149,91 +327,55 @@ class LogBuffer(object):
         return self.first_tick(), rows
 
 
+def default_path(kind):
+    """Where a log goes without --log: KIND-YYYYmmdd-HHMMSS.log in logs/ when the current
+    directory holds the firmware package (a checkout, or the brick's install directory, whose
+    logs/ `make logs` fetches), else in the current directory (the launcher runs in logs/)."""
+    name = time.strftime(kind + '-%Y%m%d-%H%M%S.log')
+    if os.path.isdir('tipbot_fw'):
+        if not os.path.isdir('logs'):
+            os.makedirs('logs')
+        return os.path.join('logs', name)
+    return name
+
+
 def columns_header(columns=COLUMNS):
     return [{'name': n, 'unit': u} for n, u in columns]
 
 
-class LogFormatError(ValueError):
-    """The file is not a complete, intact tipbot log; the message says what is wrong."""
+# What a run's log file stores: the memory rows of its core's layout, converted when read.
+STORED_LAYOUT = 'memory'
 
 
-def write_log(path, header, rows, nrows=None, columns=COLUMNS):
-    """Write header (a JSON-able dict; 'columns' is added) and rows to path.
-
-    columns: (name, unit) pairs; another list than the run log's COLUMNS makes another kind
-    of log in the same container (tipbot_fw.identify), which the header must say.
-
-    rows: an n x N_COLUMNS array; or, with nrows, an iterable of such blocks with nrows rows in
-    all (LogBuffer.file_blocks: on the brick a full ring is then written with little memory
-    beyond the buffer itself). Written to path + '.tmp' and renamed, so a reader never sees a
-    half-written log.
-    """
-    if nrows is None:
-        rows = np.asarray(rows)
-        if rows.ndim != 2 or rows.shape[1] != len(columns):
-            raise ValueError('log rows must be n x {}, got shape {}'.format(len(columns), rows.shape))
-        nrows = rows.shape[0]
-        blocks = [rows]
-    else:
-        blocks = rows
-    header = dict(header)
-    header['columns'] = columns_header(columns)
-    header['format_version'] = FORMAT_VERSION
-    text = json.dumps(header, sort_keys=True).encode('utf-8')
-    counts = _COUNTS.pack(FORMAT_VERSION, len(text), len(columns), nrows)
-    crc = zlib.crc32(text, zlib.crc32(counts))
-    written = 0
-    tmp = path + '.tmp'
-    with open(tmp, 'wb') as f:
-        f.write(MAGIC)
-        f.write(counts)
-        f.write(text)
-        for block in blocks:
-            body = np.ascontiguousarray(block, dtype='<f8')
-            if body.size:
-                data = memoryview(body).cast('B')
-                crc = zlib.crc32(data, crc)
-                f.write(data)
-            written += len(body)
-        f.write(_CRC.pack(crc & 0xffffffff))
-        f.flush()
-        os.fsync(f.fileno())
-    if written != nrows:
-        raise ValueError('log rows: {} written, {} announced'.format(written, nrows))
-    os.rename(tmp, path)
+def open_run_log(path, reserve_rows, rows):
+    """A LogWriter for a run log whose rows are memory rows of the layout `rows`
+    (LogBuffer.flush); the run's header must say which (rows.header())."""
+    return LogWriter(path, [(n, '') for n in rows.mem_names], reserve_rows, layout=STORED_LAYOUT)
 
 
 def read_log(path):
-    """-> (header dict, rows as an n x ncols float64 array). LogFormatError if not intact."""
-    with open(path, 'rb') as f:
-        data = f.read()
-    pre = len(MAGIC) + _COUNTS.size
-    if not data.startswith(MAGIC) and not MAGIC.startswith(data):
-        raise LogFormatError('{}: not a tipbot log (bad magic bytes)'.format(path))
-    if len(data) < pre:
-        raise LogFormatError('{}: truncated: {} bytes, shorter than the fixed preamble'.format(path, len(data)))
-    version, header_len, ncols, nrows = _COUNTS.unpack_from(data, len(MAGIC))
-    if version != FORMAT_VERSION:
-        raise LogFormatError('{}: log format version {} is not supported (this reader: {})'.format(
-            path, version, FORMAT_VERSION))
-    body_start = pre + header_len
-    body_len = nrows * ncols * 8
-    expected = body_start + body_len + _CRC.size
-    if len(data) < expected:
-        raise LogFormatError('{}: truncated: {} bytes, expected {} ({} rows of {} columns)'.format(
-            path, len(data), expected, nrows, ncols))
-    if len(data) > expected:
-        raise LogFormatError('{}: {} unexpected bytes after the end of the log'.format(path, len(data) - expected))
-    (crc,) = _CRC.unpack_from(data, expected - _CRC.size)
-    actual = zlib.crc32(memoryview(data)[len(MAGIC):expected - _CRC.size]) & 0xffffffff
-    if crc != actual:
-        raise LogFormatError('{}: corrupted: CRC32 is {:08x}, expected {:08x}'.format(path, actual, crc))
-    try:
-        header = json.loads(data[pre:body_start].decode('utf-8'))
-    except (ValueError, UnicodeError) as e:
-        raise LogFormatError('{}: header is not valid JSON: {}'.format(path, e))
-    if len(header.get('columns', ())) != ncols:
-        raise LogFormatError('{}: header lists {} columns, body has {}'.format(
-            path, len(header.get('columns', ())), ncols))
-    rows = np.frombuffer(data, dtype='<f8', count=nrows * ncols, offset=body_start)
-    return header, rows.reshape(nrows, ncols).astype(float)
+    """-> (header, rows in the file layout of the log's core). A run log whose file stores memory
+    rows (format 2) is converted here with the layout its header describes (the core, the
+    polarities or the fixed-point format, the encoder zeros) and its log_t0, so every reader
+    sees the columns of docs/log-format.md. LogFormatError as logcontainer.read_log."""
+    header, rows = logcontainer.read_log(path)
+    if header.get('layout') == STORED_LAYOUT:
+        names = [c.get('name') if isinstance(c, dict) else c for c in header['columns']]
+        try:
+            layout = layout_from_header(header)
+            if names != list(layout.mem_names):     # rows already in a file layout (rewritten by a tool)
+                return header, rows
+            t0 = float(header.get('log_t0', rows[0, 0] if len(rows) else 0.0))
+            rows = layout.to_file(rows, t0)
+        except (KeyError, TypeError, ValueError, AttributeError, OverflowError) as e:
+            raise LogFormatError('{}: a log of memory rows without a valid description of its rows (core, '
+                                 'polarities, fixed-point format, encoder zeros, start time): {!r}'.format(path, e))
+        header['stored_columns'] = header['columns']
+        header['columns'] = columns_header(layout.columns)
+    return header, rows
+
+
+def write_log(path, header, rows, nrows=None, columns=COLUMNS):
+    """Write a whole log at once (tests, the identify log): header, then rows (an n x ncols array,
+    or with nrows an iterable of such blocks), in the container of tipbot_fw.logcontainer."""
+    logcontainer.write_log(path, header, rows, columns)

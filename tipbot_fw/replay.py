@@ -7,15 +7,16 @@ in a fixed order, tipbot_fw.fixedpoint). The detector core computes in float64: 
 the machine that wrote the log, within the last bits across machines (docs/log-format.md).
 
 signals() turns the rows of either core into the estimates and inputs in SI, for plots,
-metrics and the simulator (host tools).
+metrics, the export and the simulator (host tools); the telemetry decoder
+(tipbot_fw.telemetry.decode) computes the same values, with the same arithmetic, from a
+datagram.
 """
-import math
-
 import numpy as np
 
 from tipbot_fw import logfile
 from tipbot_fw.core import make_core
 from tipbot_fw.gains import ACTUATED_INPUTS
+from tipbot_fw.kalman import wheel_m_per_count
 
 
 def core_from_header(header, gains, check_gains=True):
@@ -83,9 +84,9 @@ def signals(header, rows, gains):
     pol = [header['config']['polarity'][m] for m in ('right_wheel', 'left_wheel', 'joint2', 'joint3')]
     n = len(rows)
     u = np.zeros((n, 5))
-    bat = rows[:, col('battery_v')]
+    volts_per_duty = rows[:, col('battery_v')] / 100.0      # as the detector's file columns
     for k, name in enumerate(('duty_r', 'duty_l', 'duty_2', 'duty_3')):
-        u[:, ACTUATED_INPUTS[k]] = pol[k] * rows[:, col(name)] * bat / 100.0
+        u[:, ACTUATED_INPUTS[k]] = pol[k] * rows[:, col(name)] * volts_per_duty
     if header.get('estimator', 'detector') == 'detector':
         block = lambda first, width: rows[:, col(first):col(first) + width]
         return {'x_hat': block('xt_d_r', 10), 'w_hat': block('w_r', 5), 'u': u, 'u_cmd': block('u_cmd_r', 5)}
@@ -95,7 +96,7 @@ def signals(header, rows, gains):
     cpr = header['counts_per_rot']
     zeros = header.get('encoder_offsets') or [0, 0, 0, 0]
     for i, name in ((0, 'enc_r'), (1, 'enc_l')):
-        x[:, i] += kal.wheel_radius_m * pol[i] * 2.0 * math.pi / cpr[i] * (rows[:, col(name)] - zeros[i])
+        x[:, i] += wheel_m_per_count(kal.wheel_radius_m, pol[i], cpr[i]) * (rows[:, col(name)] - zeros[i])
     w_hat = np.zeros((n, 5))
     for j, i in enumerate(kal.disturbance_inputs):
         w_hat[:, ACTUATED_INPUTS[i]] = x[:, 10 + j]

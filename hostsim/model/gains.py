@@ -2,15 +2,22 @@
 
 ``python -m hostsim gains [--variant paper|physical|all] [--ts 0.005] [--params FILE]
 [--out-dir gains] [--check]`` writes ``gains/<variant>.json`` (schema in
-docs/architecture.md); another period than 5 ms goes to its own file,
-``gains/<variant>-<period>ms.json``. Output is deterministic: no wall-clock time, floats rounded
-to 12 significant digits, so regenerating gives the same bytes. ``--check`` compares instead of
-writing and exits 1 on a difference.
+docs/architecture.md). Another period or another parameters file goes to a file of its own,
+named by what differs (``physical-ts0.010.json``, ``physical-identified.json``): the
+deployable ``gains/<variant>.json`` is only ever the design of ``params/robot.json`` at 5 ms.
+
+The committed files are the source of truth. A regeneration that agrees with the file on
+disk within the tolerances of ``compare_documents`` leaves the file untouched (BLAS kernels
+differ between CPUs in the last bits, and the Riccati solution amplifies that to about 1e-9
+of |K|); only a real change rewrites it. Output is deterministic otherwise: no wall-clock
+time, floats rounded to 12 significant digits. ``--check`` compares instead of writing and
+exits 1 on a difference.
 """
 import argparse
 import dataclasses
 import json
 import os
+import re
 import sys
 
 from typing import Optional
@@ -29,6 +36,41 @@ SCHEMA_VERSION = 2
 DEFAULT_TS_S = 0.005
 DEFAULT_OUT_DIR = GAINS_DIR
 VARIANT_NAMES = ("paper", "physical")
+
+# How far a regenerated number may move from the committed one, relative to the norm of its
+# whole matrix or list (an entry near zero is rounding noise of the large ones beside it).
+# The model (expm of the linearization), the weights, the noise settings and the detector (pole
+# placement) come from backward-stable computations: BLAS kernels move them by ~1e-15 of their
+# norm, and the 12-digit rounding of the file by up to 5e-13. K and K_w solve the control
+# Riccati equation, which the paper's Q (1e7 on th1 beside 1 on the rates) makes
+# ill-conditioned: Haswell, SkylakeX, Zen and Prescott kernels move them by up to 1.1e-9 of
+# their norm (paper variant); the Kalman block's K and its folded law carry them (5e-10). The
+# filter's own Riccati equation is well-conditioned: its gain L and posterior moved by 2e-12.
+# Spectral radii are eigenvalues, well-conditioned (2e-11); the least damping ratio of the
+# robust loop is that of a slow mode (|z| ~ 0.999), whose ln|z| amplifies the eigenvalue's
+# change about a thousandfold (1.4e-9 measured). Both tolerances leave a factor of about 500 to
+# 1000 above what was measured.
+RTOL_WELL_CONDITIONED = 1e-9
+RTOL_RICCATI = 1e-6
+NUMERIC_FIELDS = {
+    "A": RTOL_WELL_CONDITIONED, "B": RTOL_WELL_CONDITIONED, "C": RTOL_WELL_CONDITIONED,
+    "E": RTOL_WELL_CONDITIONED, "Q": RTOL_WELL_CONDITIONED, "R": RTOL_WELL_CONDITIONED,
+    "L1": RTOL_WELL_CONDITIONED, "L2": RTOL_WELL_CONDITIONED, "G_w": RTOL_WELL_CONDITIONED,
+    "detector_eigenvalues": RTOL_WELL_CONDITIONED, "open_loop_eigenvalues_abs": RTOL_WELL_CONDITIONED,
+    "K": RTOL_RICCATI, "K_w": RTOL_RICCATI,
+    # eigenvalues of A - B K: K's effect, well-conditioned in K (measured: 2e-11)
+    "closed_loop_spectral_radius": RTOL_WELL_CONDITIONED,
+    "state_feedback_spectral_radius.paper": RTOL_WELL_CONDITIONED,
+    "state_feedback_spectral_radius.physical": RTOL_WELL_CONDITIONED,
+    "robust_to_models.worst_spectral_radius": RTOL_WELL_CONDITIONED,
+    "robust_to_models.least_damping": RTOL_RICCATI,
+    # the Kalman block (schema 2)
+    "kalman.A": RTOL_WELL_CONDITIONED, "kalman.B": RTOL_WELL_CONDITIONED, "kalman.C": RTOL_WELL_CONDITIONED,
+    "kalman.Q": RTOL_WELL_CONDITIONED, "kalman.R": RTOL_WELL_CONDITIONED,
+    "kalman.L": RTOL_WELL_CONDITIONED, "kalman.posterior_std": RTOL_WELL_CONDITIONED,
+    "kalman.filter_eigenvalues_abs": RTOL_WELL_CONDITIONED,
+    "kalman.K": RTOL_RICCATI, "kalman.law.M": RTOL_RICCATI,
+}
 # Both designs must hold both model variants (kalman.UncertaintySet): the two bracket what is
 # least certain about the drivetrain (rotor inertia Jm from 0 to Table 2's value, the wheel
 # motors' reaction on link 1 absent or present).
@@ -283,20 +325,135 @@ def robustness_lines(g):
             "plain design" % (span, g.ts_s), "    " + where]
 
 
-def gains_file_name(variant, ts_s):
-    """<variant>.json at the default period, <variant>-<period>ms.json at another."""
-    if abs(ts_s - DEFAULT_TS_S) < 1e-12:
-        return variant + ".json"
-    return "%s-%gms.json" % (variant, ts_s * 1000.0)
+def output_name(variant, ts_s=DEFAULT_TS_S, params_path=DEFAULT_PARAMS_PATH):
+    """File name of a design: ``<variant>.json`` for params/robot.json at the default period,
+    else named by what differs (``physical-ts0.010.json``, ``physical-identified.json``)."""
+    parts = [variant]
+    if float(ts_s) != DEFAULT_TS_S:
+        text = "%.3f" % ts_s
+        if float(text) != float(ts_s):
+            text = "%.6g" % ts_s
+        parts.append("ts" + text)
+    if os.path.realpath(params_path) != os.path.realpath(DEFAULT_PARAMS_PATH):
+        stem = os.path.splitext(os.path.basename(params_path))[0]
+        parts.append(re.sub(r"[^A-Za-z0-9_.]+", "_", stem) or "params")
+    return "-".join(parts) + ".json"
+
+
+def _leaves(doc, prefix=""):
+    """{dotted key: value} of a document, descending into objects (lists are values)."""
+    out = {}
+    for key, value in doc.items():
+        if isinstance(value, dict) and value:
+            out.update(_leaves(value, prefix + key + "."))
+        else:
+            out[prefix + key] = value
+    return out
+
+
+def _relative_difference(old, new):
+    """max |old - new| over max |old| (numbers or nested lists); None if the shapes differ."""
+    try:
+        a, b = np.asarray(old, dtype=float), np.asarray(new, dtype=float)
+    except (TypeError, ValueError):
+        return None
+    if a.shape != b.shape:
+        return None
+    if a.size == 0:
+        return 0.0
+    scale = float(np.max(np.abs(a))) or 1.0
+    return float(np.max(np.abs(a - b))) / scale
+
+
+# K judged by its effect: the committed K on the regenerated model must give the regenerated
+# closed loop's spectral radius. 1e-7 moves the slowest mode's time constant (0.8 s at
+# radius 0.9937) by 2e-5 of itself; the kernels differ by 2e-11.
+EFFECT_ATOL_RADIUS = 1e-7
+
+
+def _k_effect(committed, fresh):
+    """|rho(A - B K_committed) - rho(A - B K_fresh)| on the regenerated A, B; None if not computable."""
+    try:
+        a, b = np.asarray(fresh["A"], dtype=float), np.asarray(fresh["B"], dtype=float)
+        k_old, k_new = np.asarray(committed["K"], dtype=float), np.asarray(fresh["K"], dtype=float)
+        radius = lambda k: float(np.max(np.abs(np.linalg.eigvals(a - b @ k))))  # noqa: E731
+        return abs(radius(k_old) - radius(k_new))
+    except (KeyError, TypeError, ValueError, np.linalg.LinAlgError):
+        return None
+
+
+def compare_documents(committed, fresh):
+    """Compare a committed gains document with a regenerated one.
+
+    -> (differences, agreement): one line per field that changed beyond its tolerance
+    (numbers: NUMERIC_FIELDS, relative to the field's norm; K also by its effect on the
+    closed loop; everything else, the provenance included, exactly), and
+    {numeric field: relative difference} of those that agree.
+    """
+    old, new = _leaves(committed), _leaves(fresh)
+    differences, agreement = [], {}
+    for key in sorted(set(old) | set(new)):
+        if key not in old or key not in new:
+            differences.append("%s: %s" % (key, "not in the file" if key not in old else "no longer generated"))
+        elif key in NUMERIC_FIELDS:
+            rel = _relative_difference(old[key], new[key])
+            if rel is None:
+                differences.append("%s: shape changed" % key)
+            elif rel > NUMERIC_FIELDS[key]:
+                differences.append("%s: differs by %.2g of its norm (tolerance %g)" % (key, rel, NUMERIC_FIELDS[key]))
+            else:
+                agreement[key] = rel
+        elif old[key] != new[key]:
+            differences.append("%s: %s -> %s" % (key, _short(old[key]), _short(new[key])))
+    effect = _k_effect(committed, fresh)
+    if effect is not None and effect > EFFECT_ATOL_RADIUS:
+        differences.append("K: on the regenerated model the file's K gives a closed-loop spectral radius %.2g "
+                           "away from the regenerated K's (tolerance %g)" % (effect, EFFECT_ATOL_RADIUS))
+    return differences, agreement
+
+
+def _short(value, width=60):
+    text = json.dumps(value, sort_keys=True)
+    return text if len(text) <= width else text[:width - 3] + "..."
+
+
+def compare_with_file(path, doc):
+    """-> (differences, agreement) of ``doc`` against the gains file at ``path`` (see
+    compare_documents); a missing or unreadable file is one difference."""
+    try:
+        with open(path) as f:
+            committed = json.load(f)
+    except FileNotFoundError:
+        return ["%s does not exist" % path], {}
+    except (OSError, ValueError) as exc:
+        return ["%s is not readable JSON (%s)" % (path, exc)], {}
+    if not isinstance(committed, dict):
+        return ["%s is not a gains document" % path], {}
+    return compare_documents(committed, doc)
+
+
+def _shown(path):
+    rel = os.path.relpath(path)
+    return path if rel.startswith("..") else rel
+
+
+def agreement_text(agreement):
+    """The field nearest its tolerance, e.g. 'nearest its tolerance: K, by 3.5e-10 of its norm (1e-06)'."""
+    if not any(agreement.values()):
+        return "identical to the last digit"
+    key = max(agreement, key=lambda k: agreement[k] / NUMERIC_FIELDS[k])
+    return "nearest its tolerance: %s, by %.2g of its norm (%g)" % (key, agreement[key], NUMERIC_FIELDS[key])
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser(prog="python -m hostsim gains", description=__doc__.split("\n\n")[0])
     ap.add_argument("--variant", choices=VARIANT_NAMES + ("all",), default="all",
                     help="model variant to design (default all)")
-    ap.add_argument("--ts", type=float, default=DEFAULT_TS_S, help="loop period in seconds (default 0.005)")
-    ap.add_argument("--params", default=DEFAULT_PARAMS_PATH, help="robot parameters JSON")
-    ap.add_argument("--out-dir", default=DEFAULT_OUT_DIR, help="where the gains files go (default gains/)")
+    ap.add_argument("--ts", type=float, default=DEFAULT_TS_S,
+                    help="loop period in seconds (default 0.005; another goes to <variant>-ts<TS>.json)")
+    ap.add_argument("--params", default=DEFAULT_PARAMS_PATH,
+                    help="robot parameters JSON (default params/robot.json; another goes to <variant>-<name>.json)")
+    ap.add_argument("--out-dir", default=DEFAULT_OUT_DIR, help="where the gains files are (default gains/)")
     ap.add_argument("--check", action="store_true", help="compare with the files instead of writing them")
     args = ap.parse_args(argv)
     names = VARIANT_NAMES if args.variant == "all" else (args.variant,)
@@ -306,20 +463,29 @@ def main(argv=None):
         for name in names:
             g = design_gains(name, params, args.ts)
             print(summary(g))
-            text = dumps(to_document(g))
-            path = os.path.join(args.out_dir, gains_file_name(name, args.ts))
+            doc = to_document(g)
+            path = os.path.join(args.out_dir, output_name(name, args.ts, args.params))
+            shown = _shown(path)
+            differences, agreement = compare_with_file(path, doc)
+            if not differences:
+                print("  %s is up to date: the regenerated numbers agree with it (%s); left untouched"
+                      % (shown, agreement_text(agreement)))
+                continue
+            new = not os.path.exists(path)
             if args.check:
-                old = open(path).read() if os.path.exists(path) else None
-                if old != text:
-                    print("  %s differs from a fresh generation: run make gains" % path)
-                    status = 1
-                else:
-                    print("  %s is up to date" % path)
+                print("  %s %s (run make gains)%s" % (shown, "does not exist" if new else "differs from a fresh generation",
+                                                      "" if new else ":"))
+                status = 1
             else:
                 os.makedirs(args.out_dir, exist_ok=True)
                 with open(path, "w") as f:
-                    f.write(text)
-                print("  wrote %s" % os.path.relpath(path))
+                    f.write(dumps(doc))
+                print("  wrote %s%s" % (shown, " (new file)" if new else ", which changed:"))
+            if not new:
+                for line in differences[:12]:
+                    print("    " + line)
+                if len(differences) > 12:
+                    print("    ... and %d more" % (len(differences) - 12))
         return status
     except TipbotError as exc:
         print("error: %s" % exc, file=sys.stderr)

@@ -21,46 +21,61 @@ and publishes the new encoder counts, gyro angle/rate and battery voltage.
 
 Start: like a person holding the robot, the plant stays at the scenario's start pose (x0_si)
 until the firmware drives a motor (a nonzero duty in run-direct) or until --hold-s seconds
-after the firmware set the gyro to GYRO-G&A (its start-up; the gyro calibration at start
+after the firmware's start-up (its motors set to run-direct; the gyro calibration at start
 must have ended by then). The scenario's pushes and disturbances are timed from that
 release. If |th1| passes 90 degrees the robot lies on the floor: the plant is frozen there.
+Each firmware run (from its motors' start-up to their stop) gets the robot held at the start
+pose again, as an owner picks the robot up before restarting it: no run starts lying on the
+floor, where a still gyro and still wheels would look like a robot in balance.
+
+The gyro: from the fake's start it counts the angle of its first mode, with the scenario's
+bias, until the firmware switches it to GYRO-G&A; the first samples after the switch are
+still the old mode's (hostsim.world.fake_ev3.GYRO_MODE_SWITCH_S), as on the real sensor.
 
 The firmware must be told the start pose, gyro mounting and wheel radius: --write-config
 FILE writes the matching firmware configuration (hostsim.sim.fil.firmware_config; realtime
 priority 0), for `--config` or for `make deploy CONFIG=FILE`.
 
-Prints "fake_robot: ready ..." once the tree exists, a summary when it stops (after
---duration seconds, or on SIGTERM / SIGINT). Not for accuracy studies: the host's scheduling
+Prints "fake_robot: ready ..." once the tree exists, what the brick shows (its status lights
+when they change, the notes of each melody), a summary when it stops (after --duration
+seconds, or on SIGTERM / SIGINT). Not for accuracy studies: the host's scheduling
 makes runs unrepeatable; use hostsim.sim.fil for that.
 """
 import argparse
 import json
 import math
 import signal
+import sys
 import time
 
 import numpy as np
 
-from hostsim.world.fake_ev3 import DEFAULT_MOTOR_PORTS, FakeEV3
+from hostsim.errors import TipbotError
+from hostsim.world.fake_ev3 import DEFAULT_MOTOR_PORTS, FakeEV3, FakeEV3Error
 from hostsim.sim.fil import firmware_config
 from hostsim.model.equations import RobotModel, state_scale_to_si
 from hostsim.model.params import load_params, scaled_params
 from hostsim.world.plant import Plant
 from hostsim.sim.scenario import disturbance_at, load_scenario, parse_scenario
 from hostsim.world.sensors import SensorModel
-from tipbot_fw.config import MOTOR_ROLES
+from tipbot_fw.config import MOTOR_ROLES, ConfigError
 from tipbot_fw.gains import ACTUATED_INPUTS
 
 DEFAULT_STEP_S = 0.001
-DEFAULT_HOLD_S = 1.5
+# The firmware's start-up to the end of its gyro calibration is about 1.1 s
+# (tipbot_fw.calibration); the rest is margin for a busy host.
+DEFAULT_HOLD_S = 2.0
 PLANT_DT_S = 0.001
 FALLEN_RAD = math.pi / 2
+# How often the lights and the speaker are looked at, and the pause that ends a melody.
+SIGNALS_EVERY_S = 0.02
+MELODY_GAP_S = 0.3
 
 
 class RealTimeRobot:
     """Plant + sensors + FakeEV3 in ``root``, advanced by :meth:`step` at wall-clock times."""
 
-    def __init__(self, sc, root, params=None, hold_s=DEFAULT_HOLD_S):
+    def __init__(self, sc, root, params=None, hold_s=DEFAULT_HOLD_S, say=None):
         self.sc = sc
         nominal = load_params() if params is None else params
         p = scaled_params(sc.param_scale, nominal)
@@ -80,31 +95,81 @@ class RealTimeRobot:
             raise ValueError("the fake EV3 has its motors on %s" % (DEFAULT_MOTOR_PORTS,))
         self.fake = FakeEV3(root_dir=root, battery_v=self.battery_v)
         self.hold_s = hold_s
-        self.pushes = sorted((q.t_s, q.th1_dot_rad_s) for q in sc.pushes)
+        self.say = say
+        self.x0 = self.plant.x.copy()
+        self._pick_up()
         self.t_s = 0.0
-        self.t_release_s = None
+        self.t_run_start_s = None       # the current firmware run's start-up (motors to run-direct)
         self.t_gyro_mode_s = None
+        self.events = []                # what happened to each firmware run, one line each
         self.volts = np.zeros(5)
-        self.fallen = False
         self.max_abs_th1 = 0.0
         self.trace_t, self.trace_x, self.trace_u = [], [], []
+        self.lights = self.fake.lights()
+        self.tones_heard, self.notes, self.t_note_s, self.t_signals_s = 0, [], 0.0, 0.0
         self._publish()
 
     def _publish(self):
         enc, gyro, volts = self.sensors.read(self.plant.x_si, self.t_s)
         self.fake.set_readings(enc, gyro, volts)
 
-    def _duties(self):
-        states = self.fake.poll()
-        return [states[p].duty if states[p].running else 0 for p in self.ports]
+    def _pick_up(self):
+        """The owner puts the robot back at the start pose and holds it there."""
+        self.plant.x = self.x0.copy()
+        self.pushes = sorted((q.t_s, q.th1_dot_rad_s) for q in self.sc.pushes)
+        self.fallen = False
+        self.t_release_s = None
+
+    def _run_boundaries(self, t_s, states):
+        running = any(states[p].running for p in self.ports)
+        if running and self.t_run_start_s is None:
+            if self.t_release_s is not None:
+                self._event("a firmware run starts at %.3f s: the robot is picked up%s and held at the start pose"
+                            % (t_s, " from the floor" if self.fallen else ""))
+                self._pick_up()
+            self.t_run_start_s = t_s
+        elif not running and self.t_run_start_s is not None:
+            self._event("the firmware run that started at %.3f s stopped its motors at %.3f s: %s"
+                        % (self.t_run_start_s, t_s, self.release_text()))
+            self.t_run_start_s = None
+
+    def release_text(self):
+        return "%s%s" % ("never released" if self.t_release_s is None else "released at %.3f s" % self.t_release_s,
+                         ", FELL" if self.fallen else "")
+
+    def _watch_signals(self, t_s):
+        """Say what the brick shows: its lights when they change, a melody's notes once it ended."""
+        self.t_signals_s = t_s
+        lights = self.fake.lights()
+        if lights != self.lights:
+            self.lights = lights
+            self._tell("lights: left %(left)s, right %(right)s" % lights)
+        tones = self.fake.tones(self.tones_heard)
+        self.tones_heard += len(tones)
+        if tones:
+            self.notes += [hz for _, hz in tones if hz]
+            self.t_note_s = t_s
+        elif self.notes and t_s - self.t_note_s > MELODY_GAP_S:
+            self._tell("sound: %s Hz" % " ".join(str(hz) for hz in self.notes))
+            self.notes = []
+
+    def _tell(self, text):
+        if self.say:
+            self.say(text)
+
+    def _event(self, text):
+        self.events.append(text)
+        self._tell(text)
 
     def step(self, t_s):
         """Advance to wall-clock time t_s (s since start) and publish the readings there."""
-        duties = self._duties()
+        states = self.fake.poll(t_s)
+        self._run_boundaries(t_s, states)
+        duties = [states[p].duty if states[p].running else 0 for p in self.ports]
+        if self.t_gyro_mode_s is None and self.fake.gyro_mode == "GYRO-G&A":
+            self.t_gyro_mode_s = t_s
         if self.t_release_s is None:
-            if self.t_gyro_mode_s is None and self.fake.gyro_mode == "GYRO-G&A":
-                self.t_gyro_mode_s = t_s
-            if any(duties) or (self.t_gyro_mode_s is not None and t_s - self.t_gyro_mode_s >= self.hold_s):
+            if any(duties) or (self.t_run_start_s is not None and t_s - self.t_run_start_s >= self.hold_s):
                 self.t_release_s = t_s
         elif not self.fallen and t_s > self.t_s:
             t_rel = self.t_s - self.t_release_s
@@ -128,6 +193,8 @@ class RealTimeRobot:
         self.volts = v
         self.t_s = t_s
         self._publish()
+        if t_s - self.t_signals_s >= SIGNALS_EVERY_S:
+            self._watch_signals(t_s)
 
     def save_trace(self, path):
         np.savez(path, t_s=np.array(self.trace_t), x_si=np.array(self.trace_x).reshape(-1, 10),
@@ -173,11 +240,17 @@ def main(argv=None):
     ap.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (default: at SIGTERM/SIGINT)")
     ap.add_argument("--step-ms", type=float, default=DEFAULT_STEP_S * 1e3, help="loop period (default 1 ms)")
     ap.add_argument("--hold-s", type=float, default=DEFAULT_HOLD_S,
-                    help="release the robot this long after the gyro mode switch at the latest (default 1.5)")
+                    help="release the robot this long after the firmware's start-up at the latest (default %g)"
+                    % DEFAULT_HOLD_S)
     ap.add_argument("--write-config", metavar="FILE", help="write the matching firmware configuration to FILE")
     ap.add_argument("--trace", metavar="FILE", help="save the plant's true trajectory (npz) at the end")
     a = ap.parse_args(argv)
-    sc = load_scenario(a.scenario) if a.scenario else parse_scenario({}, "<default scenario>")
+    try:
+        sc = load_scenario(a.scenario) if a.scenario else parse_scenario({}, "<default scenario>")
+        robot = RealTimeRobot(sc, a.root, hold_s=a.hold_s, say=lambda m: print("fake_robot: " + m, flush=True))
+    except (TipbotError, ConfigError, FakeEV3Error) as e:     # a scenario the firmware could not be told
+        print("fake_robot: error: %s" % e, file=sys.stderr)
+        return 2
     stopping = []
 
     def on_signal(signum, frame):
@@ -185,7 +258,6 @@ def main(argv=None):
 
     signal.signal(signal.SIGTERM, on_signal)
     signal.signal(signal.SIGINT, on_signal)
-    robot = RealTimeRobot(sc, a.root, hold_s=a.hold_s)
     try:
         if a.write_config:
             with open(a.write_config, "w") as f:
@@ -196,9 +268,8 @@ def main(argv=None):
         robot.close()
         if a.trace:
             robot.save_trace(a.trace)
-    rel = "never released" if robot.t_release_s is None else "released at %.3f s" % robot.t_release_s
-    print("fake_robot: stopped after %.2f s: %s, max |th1| %.4f rad%s; %d steps, mean %.2f ms, max %.2f ms"
-          % (stats["elapsed_s"], rel, robot.max_abs_th1, ", FELL" if robot.fallen else "",
+    print("fake_robot: stopped after %.2f s: %s, max |th1| %.4f rad; %d steps, mean %.2f ms, max %.2f ms"
+          % (stats["elapsed_s"], robot.release_text(), robot.max_abs_th1,
              stats["steps"], stats["mean_step_s"] * 1e3, stats["max_step_s"] * 1e3), flush=True)
     if robot.fake.errors:
         print("fake_robot: client errors: %s" % "; ".join(robot.fake.errors[:5]), flush=True)

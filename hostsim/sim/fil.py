@@ -15,7 +15,7 @@ plant's 1 ms step). The plant integrates with the scenario's ``plant_method`` at
 ``advance`` per piece of constant input (hostsim.world.plant).
 
 Start: like a person holding the robot, the world keeps the plant at the scenario's start
-pose while the firmware calibrates the gyro (about 1 s, with the scenario's gyro bias and
+pose while the firmware calibrates the gyro (about 1.1 s, with the scenario's gyro bias and
 noise), and releases it when the control loop starts; t = 0 in the results is that
 release. The firmware is told the start pose (config ``start_pose_rad``). What differs from
 the linear simulation, as on the robot:
@@ -43,7 +43,9 @@ from hostsim.world.sensors import SensorModel
 from tipbot_fw import config as fw_config
 from tipbot_fw import logfile
 from tipbot_fw import replay as fw_replay
+from tipbot_fw.calibration import sample_counts
 from tipbot_fw.clock import VirtualClock
+from tipbot_fw.cues import QUIET as QUIET_CUES
 from tipbot_fw.devices import MemoryDevices
 from tipbot_fw.config import MOTOR_ROLES
 from tipbot_fw.gains import ACTUATED_INPUTS, gains_from_dict, load_gains
@@ -69,8 +71,8 @@ def firmware_config(sc, rw_m, overrides=None):
 
 def calibration_end_s(config, ts_s):
     """When the session's gyro calibration takes its last sample (see tipbot_fw.calibration)."""
-    n = max(2, int(round(config["gyro_calibration"]["duration_s"] / ts_s)))
-    return (n - 1) * ts_s
+    settle, n = sample_counts(config["gyro_calibration"], ts_s)
+    return (settle + n - 1) * ts_s
 
 
 class World:
@@ -107,7 +109,7 @@ class World:
         enc, gyro, volts = self.sensors.read(x, t_s)
         self.readings = (enc, gyro)
         if self.fake is not None:
-            self.fake.poll()   # client writes (mode, commands) take effect before the next read
+            self.fake.poll(t_s)   # client writes (mode, commands) take effect before the next read
             self.fake.set_readings(enc, gyro, volts)
 
     def read(self):
@@ -242,7 +244,7 @@ def run_firmware(sc, gains_path=None, gains_doc=None, sysfs=True, log_path=None,
             world.devices = devices
         try:
             code, header = run_session(devices, gains, config, clock, log_path=log_path,
-                                       duration_s=sc.duration_s, say=lambda msg: None)
+                                       duration_s=sc.duration_s, say=lambda msg: None, cues=QUIET_CUES)
         finally:
             devices.close()
         rows = None

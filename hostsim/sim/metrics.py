@@ -16,6 +16,8 @@ TRANSIENT_S = 2.0
 AFTER_DISTURBANCE_S = 2.0
 # The estimation error is judged over this last fraction of the run.
 FINAL_FRACTION = 0.25
+# The states by SI unit (d_r, d_l; th1..3; their rates), for figures that must not mix units.
+STATE_UNIT_GROUPS = (("m", (0, 1)), ("rad", (2, 3, 4)), ("m/s", (5, 6)), ("rad/s", (7, 8, 9)))
 
 
 def _f(v):
@@ -146,6 +148,8 @@ def _estimation(run, t):
     tail = te >= te[-1] - FINAL_FRACTION * (te[-1] - te[0])
     out["est_error_initial"] = [_f(v) for v in np.abs(e[0])]
     out["est_error_final"] = [_f(v) for v in np.max(np.abs(e[tail]), axis=0)]
+    out["final_est_error_by_unit"] = {unit: max(out["est_error_final"][i] for i in idx)
+                                      for unit, idx in STATE_UNIT_GROUPS}
     initial, final = float(np.max(np.abs(e[0]))), float(np.max(np.abs(e[tail])))
     out["final_est_error"] = _f(final)
     out["est_error_converged"] = bool(final <= max(1e-9, 1e-6 * initial))

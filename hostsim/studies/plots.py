@@ -1,13 +1,16 @@
 """PNG figures laid out like the paper's (matplotlib, Agg backend; no display needed).
 
-- ``states_estimates.png``: Figure 5, each state against its estimate (10 panels a-j);
-- ``estimation_errors.png``: Figure 6, x~ - x;
-- ``positions.png``, ``velocities.png``, ``inputs.png``: Figures 8, 9 and 10 (the paper
+- ``states_estimates.png``: each state against its estimate (10 panels a-j), as Figure 5;
+- ``estimation_errors.png``: x~ - x, as Figure 6, with an inset on the detector's first ticks
+  when its transient is too short to see on the run's time axis;
+- ``positions.png``, ``velocities.png``, ``inputs.png``: as Figures 8, 9 and 10 (the paper
   draws its simulation in red and its experiment in blue: here the linear run is red and
-  the firmware-in-the-loop run blue, the nonlinear ideal-measurement run green);
-- ``compare_<mode>.png``: Figure A1, optimal against PD;
+  the firmware-in-the-loop run blue, the nonlinear ideal-measurement run green); inputs
+  before saturation dashed, and a demand beyond the axis drawn whole in an inset of the start;
+- ``compare_<mode>.png``: optimal against PD, as Figure A1;
 - robustness figures for the Monte Carlo and the region of attraction.
 
+A caption cites a paper figure only for the scenario that figure shows (PAPER_FIGURES).
 Wheel displacements and speeds are drawn in cm and cm/s, as in the paper; the shaded band
 marks the input disturbance.
 """
@@ -30,15 +33,39 @@ CONTROLLER_STYLE = {"optimal": "-", "pd": "--"}
 LETTERS = "abcdefghij"
 
 
-MODE_WIDTH = {"linear": 1.8, "nonlinear": 0.9, "firmware": 1.0}
-# The firmware run (noisy) underneath, the nonlinear one on top of the wider linear one.
-MODE_ZORDER = {"linear": 3, "nonlinear": 4, "firmware": 2}
+# The linear and nonlinear runs often coincide: the nonlinear one is a wide pale band and the
+# linear one a thin line on top of it, so both stay visible; the noisy firmware run underneath.
+MODE_WIDTH = {"linear": 1.1, "nonlinear": 4.0, "firmware": 0.8}
+MODE_ZORDER = {"linear": 4, "nonlinear": 3, "firmware": 2}
+MODE_ALPHA = {"linear": 1.0, "nonlinear": 0.5, "firmware": 1.0}
+
+# The paper's figure that shows each scenario's experiment; other scenarios cite none.
+PAPER_FIGURES = {
+    "section7": {"states_estimates": "5", "estimation_errors": "6"},
+    "section8": {"positions": "8", "velocities": "9", "inputs": "10"},
+    "appendix_d": {"compare": "A1"},
+}
+WHAT = {"states_estimates": "states (solid) and estimates (dotted)", "estimation_errors": "estimation errors x~ - x",
+        "positions": "positions", "velocities": "velocities", "inputs": "control inputs (dashed: before saturation)",
+        "compare": "optimal controller (solid) vs PD (dashed)"}
 
 
-def _style(label):
+def caption(scenario, key):
+    """'section7: estimation errors x~ - x, cf. paper Figure 6' (key: a scenario_plots key)."""
+    kind = "compare" if key.startswith("compare_") else key
+    what = WHAT.get(kind, key.replace("_", " "))
+    if kind == "compare":
+        what += ", %s runs" % key[len("compare_"):]
+    fig = PAPER_FIGURES.get(scenario, {}).get(kind)
+    return "%s: %s%s" % (scenario, what, ", cf. paper Figure %s" % fig if fig else "")
+
+
+def _style(label, solo=False):
+    """Line style of a run; solo: the only mode in the figure (no band to tell it from another)."""
     mode, controller = label.split("/")
     return dict(color=MODE_COLORS.get(mode, "k"), linestyle=CONTROLLER_STYLE.get(controller, "-"),
-                linewidth=MODE_WIDTH.get(mode, 1.0), zorder=MODE_ZORDER.get(mode, 2))
+                linewidth=1.0 if solo else MODE_WIDTH.get(mode, 1.0), zorder=MODE_ZORDER.get(mode, 2),
+                alpha=1.0 if solo else MODE_ALPHA.get(mode, 1.0))
 
 
 def _shade(ax, sc):
@@ -63,17 +90,21 @@ def _save(fig, path):
     for ax in fig.axes:
         ax.grid(True, linewidth=0.3)
         ax.tick_params(labelsize=7)
+    return _write(fig, path)
+
+
+def _write(fig, path):
     fig.savefig(path, dpi=90)
     plt.close(fig)
     return os.path.basename(path)
 
 
-def _state_panels(axes, sc, runs, idx, estimates=False, errors=False):
+def _state_panels(axes, sc, runs, idx, estimates=False, errors=False, solo=False):
     for p, i in enumerate(idx):
         ax = axes.flat[p]
         _shade(ax, sc)
         for label, run in runs.items():
-            st = _style(label)
+            st = _style(label, solo)
             if errors:
                 if run.xhat is not None:
                     ax.plot(run.t_s, (run.xhat[:, i] - run.x[:, i]) * DISPLAY[i], label=label, **st)
@@ -84,8 +115,7 @@ def _state_panels(axes, sc, runs, idx, estimates=False, errors=False):
                         zorder=st["zorder"], label=label + " estimate")
         ax.set_ylabel(STATE_LABELS[i], fontsize=8)
         ax.set_title("(%s)" % LETTERS[p], fontsize=8, loc="left")
-    if axes.flat[0].get_legend_handles_labels()[0]:
-        axes.flat[0].legend(fontsize=6, loc="best")
+    _figure_legend(axes.flat[0].figure, axes.flat[0])
 
 
 def _xlabel(axes):
@@ -98,66 +128,163 @@ def _optimal(runs):
 
 
 def states_estimates(sc, runs, path):
-    fig, axes = _grid(5, 2, "%s: states (solid) and estimates (dotted), cf. paper Figure 5" % sc.name)
+    fig, axes = _grid(5, 2, caption(sc.name, "states_estimates"))
     # Column-major like the paper: positions left (a-e), rates right (f-j).
     _state_panels(axes.T, sc, runs, range(10), estimates=True)
     _xlabel(axes)
     return _save(fig, path)
 
 
+def transient_window_s(runs, ts_s, fraction=0.01, min_ticks=10):
+    """How long the ideal-measurement runs' estimation error takes to fall below `fraction`
+    of its start (times 1.5, at least min_ticks); None if it never does or has no start."""
+    ends = []
+    for label, run in runs.items():
+        if label.startswith("firmware/") or run.xhat is None:
+            continue
+        e = np.max(np.abs(run.xhat - run.x), axis=1)
+        if not np.isfinite(e).all() or e[0] == 0:
+            continue
+        above = np.nonzero(e > fraction * e[0])[0]
+        if above[-1] == len(e) - 1:
+            return None
+        ends.append(run.t_s[above[-1] + 1])
+    if not ends:
+        return None
+    return max(1.5 * max(ends), min_ticks * ts_s)
+
+
+
 def estimation_errors(sc, runs, path):
-    fig, axes = _grid(5, 2, "%s: estimation errors x~ - x, cf. paper Figure 6" % sc.name)
+    fig, axes = _grid(5, 2, caption(sc.name, "estimation_errors"))
     _state_panels(axes.T, sc, runs, range(10), errors=True)
+    t_end = next(iter(runs.values())).t_s[-1]
+    ts_s = np.diff(next(iter(runs.values())).t_s[:2])[0]
+    window = transient_window_s(runs, ts_s)
+    if window is not None and window < 0.05 * t_end:
+        # The detector (poles at 0.2) removes the initial estimation error within a few ticks:
+        # on the run's time axis that is one pixel, so the start is drawn again, enlarged.
+        for p, i in enumerate(range(10)):
+            _inset_start(axes.T.flat[p], runs, i, window)
     _xlabel(axes)
     return _save(fig, path)
 
 
+def _inset_start(ax, runs, i, window_s):
+    ins = ax.inset_axes([0.62, 0.52, 0.36, 0.44])
+    for label, run in runs.items():
+        if run.xhat is None:
+            continue
+        sel = run.t_s <= window_s
+        st = _style(label)
+        ins.plot(run.t_s[sel], (run.xhat[sel, i] - run.x[sel, i]) * DISPLAY[i], marker=".", markersize=3,
+                 color=st["color"], linewidth=min(st["linewidth"], 1.5), alpha=st["alpha"], zorder=st["zorder"])
+    ins.set_xlim(0, window_s)
+    ins.tick_params(labelsize=5.5, pad=1)
+    ins.set_title("first %.0f ms" % (window_s * 1e3), fontsize=6, pad=1.5)
+    ins.grid(True, linewidth=0.3)
+
+
+def _inset_demand(ax, runs, i, u_max_v, ts_s):
+    """The start of the run at full scale, where the demand goes beyond the main axis."""
+    peaks = [(np.nanmax(np.abs(_demand(r, i))), label, r) for label, r in runs.items() if _demand(r, i) is not None]
+    peak, label, run = max(peaks, key=lambda c: c[0])
+    u = _demand(run, i)
+    k = int(np.nanargmax(np.abs(u)))
+    # the demand's first excursion beyond the rails, with room after it (at least 20 ticks)
+    beyond = np.nonzero(np.abs(np.nan_to_num(u)) > u_max_v)[0]
+    beyond = beyond[run.t_s[beyond] <= 0.1 * run.t_s[-1]]
+    end = run.t_s[beyond[-1]] if len(beyond) else run.t_s[k]
+    window = min(max(20 * ts_s, 1.5 * end, 2 * run.t_s[k]), 0.25 * run.t_s[-1])
+    ins = ax.inset_axes([0.60, 0.08, 0.38, 0.84])
+    for lab, r in runs.items():
+        sel = r.t_s <= window
+        st = _style(lab)
+        ins.plot(r.t_s[sel], r.u[sel, i], color=st["color"], linewidth=min(st["linewidth"], 1.5),
+                 alpha=st["alpha"], zorder=st["zorder"])
+        if _demand(r, i) is not None:
+            ins.plot(r.t_s[sel], _demand(r, i)[sel], color=st["color"], linestyle="--", marker=".",
+                     markersize=2.5, linewidth=0.7, zorder=st["zorder"] - 0.5)
+    for s in (-1, 1):
+        ins.axhline(s * u_max_v, color="k", linewidth=0.5, linestyle="-.")
+    ins.set_xlim(0, window)
+    ins.annotate("%.1f V" % u[k], (run.t_s[k], u[k]), xytext=(8, -4 if u[k] > 0 else 4),
+                 textcoords="offset points", fontsize=6, color=_style(label)["color"])
+    ins.tick_params(labelsize=5.5, pad=1)
+    ins.set_title("first %.0f ms, full scale" % (window * 1e3), fontsize=6, pad=1.5)
+    ins.grid(True, linewidth=0.3)
+    ax.annotate("", (run.t_s[k], ax.get_ylim()[1 if u[k] > 0 else 0]), xytext=(0, -14 if u[k] > 0 else 14),
+                textcoords="offset points", arrowprops=dict(arrowstyle="->", linewidth=0.8))
+
+
 def positions(sc, runs, path):
-    fig, axes = _grid(5, 1, "%s: positions, cf. paper Figure 8" % sc.name)
+    fig, axes = _grid(5, 1, caption(sc.name, "positions"))
     _state_panels(axes, sc, runs, range(5))
     _xlabel(axes)
     return _save(fig, path)
 
 
 def velocities(sc, runs, path):
-    fig, axes = _grid(5, 1, "%s: velocities, cf. paper Figure 9" % sc.name)
+    fig, axes = _grid(5, 1, caption(sc.name, "velocities"))
     _state_panels(axes, sc, runs, range(5, 10))
     _xlabel(axes)
     return _save(fig, path)
 
 
+# The input axes show the rails with this much room; a demand beyond gets an inset.
+INPUT_AXIS_RAILS = 2.5
+
+
+def _demand(run, i):
+    u = run.u_unsat
+    return None if u is None or not np.isfinite(u[:, i]).any() else u[:, i]
+
+
 def inputs(sc, runs, u_max_v, path):
-    fig, axes = _grid(4, 1, "%s: control inputs, cf. paper Figure 10 (dashed: before saturation)" % sc.name)
+    fig, axes = _grid(4, 1, caption(sc.name, "inputs"))
+    ts_s = np.diff(next(iter(runs.values())).t_s[:2])[0]
     for p, (i, name) in enumerate(INPUT_LABELS):
         ax = axes.flat[p]
         _shade(ax, sc)
         for label, run in runs.items():
             st = _style(label)
             ax.plot(run.t_s, run.u[:, i], label=label, **st)
-            if run.u_unsat is not None:
-                unsat = np.clip(run.u_unsat[:, i], -3 * u_max_v, 3 * u_max_v)
-                ax.plot(run.t_s, unsat, color=st["color"], linestyle="--", linewidth=0.6, alpha=0.6,
-                        zorder=st["zorder"] - 0.5)
+            if _demand(run, i) is not None:
+                ax.plot(run.t_s, _demand(run, i), color=st["color"], linestyle="--", linewidth=0.7,
+                        alpha=0.7, zorder=st["zorder"] - 0.5)
         for s in (-1, 1):
             ax.axhline(s * u_max_v, color="k", linewidth=0.6, linestyle="-.")
+        limit = 1.05 * INPUT_AXIS_RAILS * u_max_v
+        peak = max([np.nanmax(np.abs(_demand(r, i))) for r in runs.values() if _demand(r, i) is not None] or [0.0])
+        shown = max(1.15 * min(peak, limit), 1.15 * np.max([np.abs(r.u[:, i]).max() for r in runs.values()]), 0.5)
+        ax.set_ylim(-shown, shown)
+        if peak > shown:
+            _inset_demand(ax, runs, i, u_max_v, ts_s)
         ax.set_ylabel(name, fontsize=8)
         ax.set_title("(%s)" % LETTERS[p], fontsize=8, loc="left")
-    axes.flat[0].legend(fontsize=6)
+    _figure_legend(fig, axes.flat[0])
     axes.flat[-1].set_xlabel("t [s]", fontsize=8)
     return _save(fig, path)
 
 
+def _figure_legend(fig, ax):
+    """The runs' legend under the title, where no panel's data or inset is."""
+    handles, labels = ax.get_legend_handles_labels()
+    if handles:
+        fig.legend(handles, labels, loc="upper center", bbox_to_anchor=(0.5, 1.0 - 0.42 / fig.get_figheight()),
+                   ncol=len(handles), fontsize=7, frameon=False)
+
+
 def compare_controllers(sc, runs, mode, u_max_v, path):
-    """Figure A1: optimal against PD, states and inputs, one mode."""
+    """Optimal against PD, states and inputs, one mode (as Figure A1)."""
     pair = {k: v for k, v in runs.items() if k.startswith(mode + "/")}
-    fig, axes = _grid(7, 2, "%s (%s): optimal controller (solid) vs PD (dashed), cf. paper Figure A1"
-                      % (sc.name, mode), height=1.8)
-    _state_panels(axes[:5].T, sc, pair, range(10))
+    fig, axes = _grid(7, 2, caption(sc.name, "compare_" + mode), height=1.8)
+    _state_panels(axes[:5].T, sc, pair, range(10), solo=True)
     for p, (i, name) in enumerate(INPUT_LABELS):
         ax = axes[5 + p // 2, p % 2]
         _shade(ax, sc)
         for label, run in pair.items():
-            ax.plot(run.t_s, run.u[:, i], label=label, **_style(label))
+            ax.plot(run.t_s, run.u[:, i], label=label, **_style(label, solo=True))
         for s in (-1, 1):
             ax.axhline(s * u_max_v, color="k", linewidth=0.6, linestyle="-.")
         ax.set_ylabel(name, fontsize=8)
@@ -198,18 +325,20 @@ def montecarlo_figure(results, path):
             axes[2].scatter(tilt[ok], volt[ok], s=8, color=color, label=name + " ok")
         if (~ok).any():
             axes[2].scatter(tilt[~ok], volt[~ok], s=16, marker="x", color=color, label=name + " failed")
-    axes[0].set_xlabel("peak |th1| [rad]")
-    axes[1].set_xlabel("peak |u| [V]")
+    axes[0].set_xlabel("peak |th1| of a run [rad]")
+    axes[1].set_xlabel("peak |u| of a run [V]")
+    for ax, title in zip(axes[:2], ("peak tilt", "peak input")):
+        ax.set_ylabel("runs")
+        ax.set_title(title, fontsize=9)
     axes[2].set_xlabel("peak |th1| [rad]")
     axes[2].set_ylabel("peak |u| [V]")
+    axes[2].set_title("each run", fontsize=9)
     for ax in axes:
         ax.legend(fontsize=7)
         ax.grid(True, linewidth=0.3)
     fig.suptitle("Monte Carlo: firmware in the loop under parameter, sensor and timing uncertainty", fontsize=10)
     fig.tight_layout(rect=(0, 0, 1, 0.93))
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return os.path.basename(path)
+    return _write(fig, path)
 
 
 def roa_figure(table, path):
@@ -219,17 +348,31 @@ def roa_figure(table, path):
     fig, ax = plt.subplots(figsize=(10, 3.8))
     width = 0.8 / max(1, len(groups))
     for gi, group in enumerate(groups):
-        vals = []
+        vals, at_limit = [], []
         for key in keys:
-            hit = [r["max_recovered_rad"] for r in table if (r["gains"], r["mode"]) == group and (r["angle"], r["sign"]) == key]
-            vals.append(hit[0] if hit else 0.0)
-        ax.bar(np.arange(len(keys)) + gi * width, vals, width, label="%s gains, %s" % group)
+            hit = [r for r in table if (r["gains"], r["mode"]) == group and (r["angle"], r["sign"]) == key]
+            vals.append(hit[0]["max_recovered_rad"] if hit else 0.0)
+            at_limit.append(bool(hit) and hit[0]["max_recovered_rad"] >= hit[0]["limit_rad"])
+        x = np.arange(len(keys)) + gi * width
+        bars = ax.bar(x, vals, width, label="%s gains, %s" % group)
+        # A bar at the firmware's stop limit is where the search stopped, not where recovery ends.
+        for xi, v, lim, bar in zip(x, vals, at_limit, bars):
+            if lim:
+                bar.set_hatch("///")
+                ax.plot(xi, v, marker="v", color="k", markersize=5, zorder=5)
+    limits = {}
+    for r in table:
+        limits[(r["angle"], r["sign"])] = r["limit_rad"]
+    for k, key in enumerate(keys):
+        ax.hlines(limits[key], k - width / 2, k + 0.8 - width / 2, colors="k", linestyles=":", linewidth=0.8)
+    ax.plot([], [], marker="v", color="k", linestyle=":", linewidth=0.8,
+            label="firmware stop limit (hatched bar: recovered up to it)")
     ax.set_xticks(np.arange(len(keys)) + 0.4 - width / 2)
     ax.set_xticklabels(["%s%s" % (("+" if s > 0 else "-"), a) for a, s in keys])
     ax.set_ylabel("largest recovered initial angle [rad]")
-    ax.legend(fontsize=7)
+    ax.set_xlabel("initial angle (only that one nonzero, released from rest)")
+    ax.set_ylim(0, 1.3 * max(limits.values()))        # room for the legend above the bars
+    ax.legend(fontsize=7, loc="upper left", ncol=2)
     ax.grid(True, axis="y", linewidth=0.3)
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return os.path.basename(path)
+    return _write(fig, path)

@@ -10,6 +10,7 @@ import os
 
 import numpy as np
 
+from hostsim.sim.metrics import STATE_UNIT_GROUPS
 from hostsim.studies.stats import trio
 
 CM = 100.0
@@ -44,8 +45,8 @@ SECTION7 = [
     ("ticks at the 7.6 V limit", "none implied", lambda m: "%.1f %%" % (100 * m["saturated_fraction"])),
     ("peak |th1|, |th2|, |th3| (rad)", "Figure 5 (not in the text)",
      lambda m: "%.3f, %.3f, %.3f" % tuple(m["peak_abs_th_rad"])),
-    ("estimation error x~ - x at the end (max over states)", "'tends to zero' (Figure 6)",
-     lambda m: _opt(m.get("final_est_error"), "%.1e")),
+    ("estimation error x~ - x at the end: d (m), th (rad), d' (m/s), th' (rad/s)", "'tends to zero' (Figure 6)",
+     lambda m: ", ".join(_opt(m["final_est_error_by_unit"][unit], "%.1e") for unit, _ in STATE_UNIT_GROUPS)),
     ("disturbance estimate error |w^ - w| (V)", "estimates track the states 'even when disturbances occur'",
      lambda m: _opt(m.get("w_hat_error_v"), "%.2g")),
     ("upright at the end", "yes", lambda m: "yes" if m["upright"] else "no (%s)" % (m.get("stop_reason") or "fell")),
@@ -123,9 +124,11 @@ def summary_table(docs):
 
 
 def _figures(doc, rel):
+    from hostsim.studies.plots import caption
     lines = []
     for key, name in doc.get("plots", {}).items():
-        lines.append("![%s %s](%s/%s)" % (doc["scenario"], key, rel, name))
+        text = caption(doc["scenario"], key)
+        lines.append("![%s](%s/%s)\n\n_%s_" % (text, rel, name, text))
     return "\n\n".join(lines)
 
 
@@ -256,14 +259,18 @@ Runs are labelled `<mode>/<controller>`:
   d(0) - R_w th1(0) of the scenario's frame. Each run's metrics compare its input RMS with the
   ideal run's (the law fed the exact state and disturbance on the nonlinear plant). Positions,
   estimates and final displacements are shown in the scenario's frame. The plant is held at the
-  start pose during the firmware's 1 s gyro calibration and released at t = 0.
+  start pose during the firmware's gyro calibration (1.1 s: 0.1 s of settling, 1 s of window)
+  and released at t = 0.
 
 The paper's scenarios run on the `paper` model (the one Appendix C's matrices come from) with
 RK4; `section8_physical` runs the robot's own gains on the `physical` model. The region of
 attraction and the Monte Carlo use the `physical` model (the robot) with Heun's method at 1 kHz
 (its error against RK4 is below 1e-5 rad on that model: tests/test_sim_plant.py).
-`demand V` is the largest input the law asked for before saturation; `est err` is the largest
-|x~ - x| over the last quarter of the run (SI units, all states).
+Summary columns: `|th1| rad` ... `|u| V` are peaks; `demand V` is the largest input the law
+asked for before saturation; `|d| end m` is the wheels' distance from their origin at the end;
+`est m`, `est rad`, `est m/s`, `est rad/s` are the largest |estimate - x| over the last quarter
+of the run among the states in that unit (d; th1-th3; d'; th1'-th3'): the firmware's Kalman
+filter's x^, the paper's detector's x~ in the linear and nonlinear runs.
 """
 
 
@@ -296,7 +303,9 @@ def write_report(out_dir, docs, roa=None, mc=None, extra_notes=(), firmware_note
                   "Largest initial angle (only that one nonzero, released from rest) after which the robot is "
                   "upright at %g s; bisection to %.3f rad on the `%s` model, up to the firmware's stop limits."
                   % (roa["duration_s"], roa["tol_rad"], roa["plant_variant"]), "", roa_table(roa), "",
-                  "![region of attraction](robustness/roa.png)", ""]
+                  "![region of attraction](robustness/roa.png)", "",
+                  "_Region of attraction: a hatched bar with a triangle reached the firmware's stop limit (dotted), "
+                  "where the search stops: the robot recovers from at least that much._", ""]
     if mc:
         meta = mc["_meta"]
         lines += ["### Monte Carlo", "",
@@ -306,7 +315,9 @@ def write_report(out_dir, docs, roa=None, mc=None, extra_notes=(), firmware_note
                   "probability 1/2, wake-up jitter up to 1 ms, release th1(0) ~ U(-0.04, 0.04) rad; seed %d "
                   "(hostsim.studies.montecarlo). %.1f s on %d workers." % (
                       meta["runs_per_gains"], meta["duration_s"], meta["plant_variant"], meta["seed"], meta["wall_s"],
-                      meta["jobs"]), "", mc_table(mc), "", "![Monte Carlo](robustness/montecarlo.png)", ""]
+                      meta["jobs"]), "", mc_table(mc), "", "![Monte Carlo](robustness/montecarlo.png)", "",
+                  "_Monte Carlo: how many runs reached each peak tilt (left) and peak input (middle), and every "
+                  "run's pair of them (right; x: a run that failed)._", ""]
     if firmware_note:
         lines += ["## Firmware in the loop", "", firmware_note, ""]
     for note in extra_notes:

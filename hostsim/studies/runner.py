@@ -12,6 +12,7 @@ import time
 import numpy as np
 
 from hostsim.sim import metrics as metrics_mod
+from hostsim.sim.metrics import STATE_UNIT_GROUPS
 from hostsim.sim.fil import pd_gains_document, run_firmware
 from hostsim.sim.linear_sim import simulate_linear, simulate_nonlinear
 from hostsim.model.pd import pd_for_gains
@@ -107,10 +108,13 @@ def _flatten(runs):
 
 
 SUMMARY_COLUMNS = (
-    ("run", "%-18s"), ("up", "%-11s"), ("|th1|max", "%8s"), ("|th2|max", "%8s"), ("|th3|max", "%8s"),
-    ("|u|max V", "%8s"), ("demand V", "%8s"), ("sat %", "%6s"), ("settle s", "%8s"), ("|d| end", "%8s"),
-    ("est err", "%8s"),
-)
+    ("run", "%-18s"), ("up", "%-11s"), ("|th1| rad", "%9s"), ("|th2| rad", "%9s"), ("|th3| rad", "%9s"),
+    ("|u| V", "%6s"), ("demand V", "%8s"), ("sat %", "%5s"), ("settle s", "%8s"), ("|d| end m", "%9s"),
+) + tuple(("est %s" % unit, "%9s") for unit, _ in STATE_UNIT_GROUPS)
+SUMMARY_NOTE = ("|th| and |u|: peaks; demand: the largest input asked for before saturation; |d| end: distance "
+                "from the wheel origin at the end; est <unit>: the largest |estimate - x| over the last quarter of "
+                "the run, of the states in that unit (d; th1-3; d'; th1-3'): the firmware's Kalman filter's x^, "
+                "the detector's x~ in the linear and nonlinear runs")
 
 
 def summary_rows(doc):
@@ -118,14 +122,14 @@ def summary_rows(doc):
     for label, m in doc["runs"].items():
         th = m["peak_abs_th_rad"]
         demand = m.get("peak_abs_u_unsat_v")
+        est = m.get("final_est_error_by_unit") or {}
         rows.append([
             "%s" % label, "yes" if m["upright"] else (m.get("stop_reason") or "fell").upper(),
             "%.3f" % th[0], "%.3f" % th[1], "%.3f" % th[2], "%.2f" % max(m["peak_abs_u_v"]),
-            "-" if demand is None else "%.1f" % max(demand), "%.0f" % (100 * m["saturated_fraction"]),
+            "-" if demand is None else "%.1f" % max(demand), "%.1f" % (100 * m["saturated_fraction"]),
             "-" if m["settle_time_s"] is None else "%.2f" % m["settle_time_s"],
             "%.3f" % m["final_abs_d_m"],
-            "-" if m.get("final_est_error") is None else "%.1e" % m["final_est_error"],
-        ])
+        ] + ["-" if est.get(unit) is None else "%.1e" % est[unit] for unit, _ in STATE_UNIT_GROUPS])
     return rows
 
 
@@ -173,5 +177,6 @@ def main(argv=None):
         print("error: %s" % exc, file=sys.stderr)
         return 2
     print(format_summary(doc))
+    print("(%s)" % SUMMARY_NOTE)
     print("wrote %s" % os.path.join(out, "metrics.json"))
     return 0 if doc["expect_ok"] else 1

@@ -98,6 +98,8 @@ def main(argv=None):
     for doc in docs:
         print(runner.format_summary(doc))
         print()
+    print("(%s)" % runner.SUMMARY_NOTE)
+    print()
     if roa_res:
         print("Region of attraction (largest recovered initial angle)")
         print(roa.format_table(roa_res))

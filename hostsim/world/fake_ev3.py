@@ -6,6 +6,8 @@ The tree has the ev3dev-stretch layout and attribute formats::
     ROOT/lego-sensor/sensor0/   address (ev3-ports:in2), driver_name (lego-ev3-gyro), mode, bin_data, ...
     ROOT/power_supply/lego-ev3-battery/voltage_now   (microvolts)
     ROOT/board-info/board0/uevent
+    ROOT/leds/led0:red:brick-status/brightness, ...   (the status lights: tipbot_fw.feedback.LEDS)
+    ROOT/input-by-path/platform-sound-event         (the speaker's input device, a plain file here)
 
 Clients point at ROOT (``ev3dev2.Device.DEVICE_ROOT_PATH = fake.sysfs_root`` or
 ``Ev3Devices(config, sysfs_root=fake.sysfs_root)``) and need no patching. The files on disk are
@@ -58,6 +60,8 @@ import struct
 import tempfile
 from collections import Counter, namedtuple
 
+from tipbot_fw import feedback
+
 #: Size of every fake-owned text record (value + "\n" + space padding) and of bin_data.
 RECORD_BYTES = 32
 #: lego-sensor bin_data is a 32-byte binary attribute (LEGO_SENSOR_RAW_DATA_SIZE).
@@ -83,6 +87,10 @@ _GYRO_MODE_INFO = {name: (n, units) for name, n, units in GYRO_MODES}
 GYRO_MODE_NAMES = tuple(name for name, _, _ in GYRO_MODES)
 #: Modes whose value0 is the angle: entering one restarts the angle from 0, as the sensor does.
 _ANGLE_MODES = ('GYRO-ANG', 'GYRO-G&A')
+#: After a mode switch the UART sensor keeps sending the previous mode's messages until it has
+#: switched (tipbot_fw.ev3io; ev3dev waits for new-mode data up to 50 ms per try): for this
+#: long after the switch the fake keeps the previous mode's record in bin_data and value<N>.
+GYRO_MODE_SWITCH_S = 0.05
 
 #: ev3dev's max_speed (tacho counts/s) per driver.
 MAX_SPEED = {'lego-ev3-l-motor': 1050, 'lego-ev3-m-motor': 1560, 'lego-nxt-motor': 1020}
@@ -256,6 +264,7 @@ class _Gyro(_Device):
         self.angle = 0             # the sensor's integrated angle, in its own frame
         self.angle_ref = 0         # angle when an angle mode was last entered
         self.rate = 0
+        self.stale_until_s = None  # the previous mode's record stays until then (a mode switch)
 
 
 class FakeEV3(object):
@@ -266,10 +275,14 @@ class FakeEV3(object):
     None}`` unplugs C. ``gyro_port=None`` leaves out the gyro; ``gyro_driver`` can name another
     sensor. ``root_dir=None`` makes (and :meth:`close` removes) a temporary directory; a given
     ``root_dir`` must be empty or absent and is left in place.
+
+    Time: a driver that passes the time to :meth:`poll` gets the gyro's mode switch delay
+    (``gyro_mode_switch_s``: the previous mode's readings for that long after the switch);
+    without it the switch is immediate.
     """
 
     def __init__(self, root_dir=None, battery_v=8.0, motors=None, gyro_port='in2',
-                 gyro_driver='lego-ev3-gyro'):
+                 gyro_driver='lego-ev3-gyro', gyro_mode_switch_s=GYRO_MODE_SWITCH_S):
         self._own_root = root_dir is None
         if root_dir is None:
             root_dir = tempfile.mkdtemp(prefix='fake-ev3-')
@@ -282,6 +295,8 @@ class FakeEV3(object):
         #: Client mistakes the real driver would reject with EINVAL (the value is not applied).
         self.errors = []
         self._fds = []
+        self.gyro_mode_switch_s = gyro_mode_switch_s
+        self.now_s = None          # the time of the latest poll(t_s), if the driver gives one
 
         spec = dict(DEFAULT_MOTORS)
         spec.update(motors or {})
@@ -301,6 +316,8 @@ class FakeEV3(object):
             self._gyro = self._make_gyro(gyro_port, gyro_driver, path)
         self._make_battery(battery_v)
         self._make_board_info()
+        self._make_lights()
+        self._make_speaker()
 
     # ----------------------------------------------------------------- tree creation
     def _new_file(self, path, content, mode, size=None):
@@ -397,6 +414,25 @@ class FakeEV3(object):
         finally:
             os.close(fd)
 
+    def _make_lights(self):
+        self._lights = []
+        for _, _, name in feedback.LEDS:
+            led = _Device(name, 'leds-pwm', os.path.join(self.sysfs_root, 'leds', name))
+            os.makedirs(led.path)
+            self._add(led, 'brightness', '0', _RW)
+            self._add(led, 'max_brightness', '255')
+            self._add(led, 'trigger', '[none] timer heartbeat default-on', _RW)
+            self._lights.append(led)
+
+    def _make_speaker(self):
+        """The speaker's input device: the firmware appends struct input_event records (one
+        tone event each); kept whole, so a test hears every note and when it started."""
+        path = feedback.sound_device(self.sysfs_root)
+        os.makedirs(os.path.dirname(path))
+        fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_EXCL, 0o660)
+        self._fds.append(fd)
+        self._speaker_fd = fd
+
     # ----------------------------------------------------------------- fake-owned values
     def _put(self, attr, text):
         data = self._record(text, attr.size)
@@ -463,6 +499,10 @@ class FakeEV3(object):
         }[g.mode]
 
     def _publish_gyro(self, g):
+        if g.stale_until_s is not None:
+            if self.now_s is not None and self.now_s < g.stale_until_s:
+                return
+            g.stale_until_s = None
         values = self._gyro_values(g)
         # bin_data first: it is what Ev3Devices reads, in one pwrite for both values.
         self._put_bytes(g.attrs['bin_data'], struct.pack('<%dh' % len(values), *values))
@@ -567,10 +607,15 @@ class FakeEV3(object):
         if mode in _ANGLE_MODES:
             g.angle_ref = g.angle
         g.mode = mode
+        if self.now_s is not None and self.gyro_mode_switch_s > 0:
+            g.stale_until_s = self.now_s + self.gyro_mode_switch_s
         self._publish_gyro_mode(g)
 
-    def poll(self):
-        """Apply what clients wrote since the last poll; return {motor port: MotorState}."""
+    def poll(self, t_s=None):
+        """Apply what clients wrote since the last poll; return {motor port: MotorState}.
+        ``t_s``: the driver's time now (s), for the gyro's mode switch delay."""
+        if t_s is not None:
+            self.now_s = t_s
         for m in self._motors.values():
             self._poll_motor(m)
         if self._gyro is not None:
@@ -578,6 +623,30 @@ class FakeEV3(object):
         return {port: m.state() for port, m in self._motors.items()}
 
     # ----------------------------------------------------------------- queries
+    def lights(self):
+        """{'left': color, 'right': color} the status lights show now ('off', 'green', 'amber',
+        'red'; a brightness that is neither 0 nor max_brightness counts as on)."""
+        on = []
+        for led in self._lights:
+            raw = os.pread(led.attrs['brightness'].fd, 64, 0)
+            try:
+                on.append(1 if int(_first_line(raw)) > 0 else 0)
+            except ValueError:
+                on.append(0)
+        return {'left': feedback.COLOR_NAMES[tuple(on[0:2])], 'right': feedback.COLOR_NAMES[tuple(on[2:4])]}
+
+    def tones(self, start=0):
+        """[(t_s, Hz)] of the tone events written to the speaker so far, from the start-th on
+        (0 Hz: silence); t_s is the writer's clock (tipbot_fw.feedback writes time.monotonic())."""
+        size = feedback.INPUT_EVENT.size
+        data = os.pread(self._speaker_fd, 1 << 24, start * size)
+        out = []
+        for at in range(0, len(data) - size + 1, size):
+            sec, usec, kind, code, value = feedback.INPUT_EVENT.unpack_from(data, at)
+            if kind == feedback.EV_SND and code == feedback.SND_TONE:
+                out.append((sec + usec * 1e-6, value))
+        return out
+
     def motor_duty(self, port):
         """Duty (percent) applied at the last poll: 0 unless running run-direct."""
         return self._motor(port).duty

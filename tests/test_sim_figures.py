@@ -1,0 +1,120 @@
+"""What the report's figures and tables show (hostsim.studies.plots, hostsim.studies.runner): captions cite the
+paper's figure of their own scenario only, the whole input demand is on the figure, short
+transients get an inset, stop limits are marked, axes and columns carry units."""
+import dataclasses
+
+import numpy as np
+import pytest
+
+from hostsim.sim import metrics
+from hostsim.sim.result import RunResult
+from hostsim.sim.scenario import parse_scenario
+from hostsim.studies import plots, runner
+
+U_MAX_V = 7.6
+
+
+@pytest.fixture
+def figures(monkeypatch):
+    """The figures the plot functions would save, kept open for inspection."""
+    kept = []
+
+    def keep(fig, path):
+        kept.append(fig)
+        return path
+    monkeypatch.setattr(plots, "_write", keep)
+    yield kept
+    for fig in kept:
+        plots.plt.close(fig)
+
+
+def test_captions_cite_the_paper_figure_of_their_own_scenario_only():
+    assert plots.caption("section7", "estimation_errors").endswith("cf. paper Figure 6")
+    assert plots.caption("section8", "inputs").endswith("cf. paper Figure 10")
+    assert plots.caption("appendix_d", "compare_firmware").endswith("firmware runs, cf. paper Figure A1")
+    for scenario, key in (("section7", "inputs"), ("section7", "positions"), ("section8", "states_estimates"),
+                          ("section8_physical", "positions"), ("appendix_d", "velocities")):
+        assert "Figure" not in plots.caption(scenario, key), (scenario, key)
+
+
+def section7_like_runs(n=800, ts=0.005):
+    """A linear run whose law demands 71.5 V at the second tick and whose estimate converges in
+    a few ticks, and a noisy firmware run."""
+    t = np.arange(n) * ts
+    rng = np.random.default_rng(0)
+    x = np.zeros((n, 10))
+    x[:, 2] = 0.1 * np.exp(-t)
+    err = np.outer(0.2 ** np.arange(n), np.ones(10)) * 0.01
+    u_unsat = np.zeros((n, 5))
+    u_unsat[:, 0] = 2.0 * np.exp(-t)
+    u_unsat[1, 0] = 71.5
+    u = np.clip(u_unsat, -U_MAX_V, U_MAX_V)
+    none = np.zeros((n, 5))
+    lin = RunResult(t_s=t, x=x, u=u, w=none, completed=True, xhat=x + err, u_unsat=u_unsat)
+    fw_u = np.clip(rng.normal(0, 4, (n, 5)), -U_MAX_V, U_MAX_V)
+    fw = RunResult(t_s=t, x=x, u=fw_u, w=none, completed=True, xhat=x + rng.normal(0, 0.003, (n, 10)),
+                   u_unsat=1.5 * fw_u)
+    return {"linear/optimal": lin, "firmware/optimal": fw}
+
+
+def test_the_whole_demand_is_on_the_inputs_figure(figures):
+    sc = parse_scenario({"duration_s": 4.0}, "<test>")
+    plots.inputs(sc, section7_like_runs(), U_MAX_V, "inputs.png")
+    fig = figures[0]
+    wheel = fig.axes[0]
+    assert wheel.get_ylim()[1] >= 2 * U_MAX_V              # the rails with room around them
+    insets = [a for a in wheel.child_axes]
+    assert len(insets) == 1 and insets[0].get_ylim()[1] >= 71.5
+    assert any("71.5 V" in t.get_text() for t in insets[0].texts)
+    # the linear run is drawn above the nonlinear band and the firmware run, and shows
+    styles = {line.get_label(): line for line in wheel.get_lines() if not line.get_label().startswith("_")}
+    assert styles["linear/optimal"].get_zorder() > styles["firmware/optimal"].get_zorder()
+    assert plots.MODE_ZORDER["linear"] > plots.MODE_ZORDER["nonlinear"]
+    assert plots.MODE_WIDTH["nonlinear"] > 2 * plots.MODE_WIDTH["linear"]
+
+
+def test_a_transient_of_a_few_ticks_gets_an_inset(figures):
+    sc = parse_scenario({"duration_s": 4.0}, "<test>")
+    runs = section7_like_runs()
+    assert plots.transient_window_s(runs, 0.005) == pytest.approx(0.05)     # 10 ticks at least
+    plots.estimation_errors(sc, runs, "errors.png")
+    panels = [a for a in figures[0].axes if a.child_axes]
+    assert len(panels) == 10
+    assert panels[0].child_axes[0].get_xlim() == pytest.approx((0, 0.05))
+    # a slow error gets none: the run's own time axis shows it
+    slow = {k: dataclasses.replace(v, xhat=v.x + 0.01 * np.exp(-v.t_s)[:, None]) for k, v in runs.items()}
+    plots.estimation_errors(sc, slow, "errors.png")
+    assert not [a for a in figures[1].axes if a.child_axes]
+
+
+def test_region_of_attraction_bars_at_the_stop_limit_are_marked(figures):
+    rows = [{"gains": "physical", "mode": "firmware", "angle": a, "sign": s, "max_recovered_rad": v, "limit_rad": lim}
+            for a, v, lim in (("th1", 0.22, 0.6), ("th3", 1.2, 1.2)) for s in (1, -1)]
+    plots.roa_figure(rows, "roa.png")
+    ax = figures[0].axes[0]
+    hatched = sorted(round(b.get_height(), 2) for b in ax.patches if b.get_hatch())
+    assert hatched == [1.2, 1.2]
+    assert "firmware stop limit" in " ".join(t.get_text() for t in ax.get_legend().get_texts())
+
+
+def test_monte_carlo_histograms_say_what_they_count(figures):
+    rows = [{"success": True, "peak_abs_th1_rad": 0.01 * k, "peak_abs_u_v": 4 + 0.1 * k} for k in range(10)]
+    plots.montecarlo_figure({"physical": {"runs": rows}}, "mc.png")
+    hist_tilt, hist_u, scatter = figures[0].axes
+    assert hist_tilt.get_ylabel() == hist_u.get_ylabel() == "runs"
+    assert "[rad]" in hist_tilt.get_xlabel() and "[V]" in hist_u.get_xlabel()
+
+
+def test_summary_columns_carry_units_and_split_the_estimation_error_by_unit():
+    names = [name for name, _ in runner.SUMMARY_COLUMNS]
+    for name in names[2:]:
+        assert name.split()[-1] in ("rad", "V", "%", "s", "m", "m/s", "rad/s"), name
+    t = np.arange(400) * 0.005
+    x = np.zeros((400, 10))
+    err = np.zeros(10)
+    err[[0, 2, 5, 7]] = [0.002, 0.03, 0.4, 3.0]          # m, rad, m/s, rad/s
+    run = RunResult(t_s=t, x=x, u=np.zeros((400, 5)), w=np.zeros((400, 5)), completed=True, xhat=x + err)
+    m = metrics.compute(run, parse_scenario({"duration_s": 2.0}, "<test>"), U_MAX_V)
+    assert m["final_est_error_by_unit"] == {"m": 0.002, "rad": 0.03, "m/s": 0.4, "rad/s": 3.0}
+    row = runner.summary_rows({"runs": {"linear/optimal": m}})[0]
+    assert row[-4:] == ["2.0e-03", "3.0e-02", "4.0e-01", "3.0e+00"]
