@@ -65,6 +65,21 @@ def test_section7_is_the_printed_initial_state_in_si():
      "field expect.linear/pd names no run of this scenario (runs: firmware/optimal, linear/optimal)"),
     ({"expect": {"linear/optimal": {"max_th": 1}}}, "field expect.linear/optimal.max_th is unknown"),
     ({"expect": {"linear/optimal": {"upright": 1}}}, "field expect.linear/optimal.upright must be true or false, got 1"),
+    ({"pushes": [{"t_s": 1, "link": 4, "impulse_n_s": 0.1}]}, "field pushes[0].link must be one of 1, 2, 3, got 4"),
+    ({"brick": {"backlash": [3, 3, 3, 0]}}, "field brick.backlash is unknown"),
+    ({"brick": {"backlash_deg": [3, 3, 3]}}, "field brick.backlash_deg must be a list of 4 numbers, got [3, 3, 3]"),
+    ({"brick": {"friction_deadband_pct": [4, 4, -4, 10]}},
+     "field brick.friction_deadband_pct[2] must be a number in [0, 100], got -4"),
+    ({"brick": {"tacho_access_s": [0.0005, 0.0003]}},
+     "field brick.tacho_access_s must be [lo, hi] with 0 <= lo <= hi, got [0.0005, 0.0003]"),
+    ({"brick": {"gyro_scale_error": [-0.02, 0.7]}}, "field brick.gyro_scale_error[1] must be a number in [-0.5, 0.5], got 0.7"),
+    ({"brick": {"encoder_truncate": 1}}, "field brick.encoder_truncate must be true or false, got 1"),
+    ({"brick": {"sources": {"backlash": "x"}}}, "field brick.sources.backlash names no brick field"),
+    ({"brick": {"compute_s": [0.0007, 0.0009]}, "jitter_s": 0.001},
+     "field jitter_s must be 0.0 with the brick's timing (brick.*_access_s, compute_s, late wakes, stalls replace it)"),
+    ({"brick": {"compute_s": [0.0007, 0.0009]}, "io_latency_s": 0.002},
+     "field io_latency_s does not apply with the brick's timing (each duty lands at its own write)"),
+    ({"firmware_config": []}, "field firmware_config must be an object, got []"),
 ])
 def test_malformed_fields_are_named(doc, message):
     with pytest.raises(ScenarioError, match="^" + re.escape("bad.json: " + message) + "$"):

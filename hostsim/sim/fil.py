@@ -14,6 +14,12 @@ whole ticks more; ``jitter_s`` makes each wake-up late by |N(0, jitter_s)| (roun
 plant's 1 ms step). The plant integrates with the scenario's ``plant_method`` at 1 kHz, one
 ``advance`` per piece of constant input (hostsim.world.plant).
 
+With a scenario's ``brick`` effects on (hostsim.sim.scenario.Brick), the world is
+hostsim.sim.brick_world.BrickWorld instead: the same plant on a 1 ms grid with the
+drivetrain, the sensors' and the battery's imperfections and, with the brick's timing, every
+sysfs access at its own moment (hostsim.world.brick_timing); the brick's timing needs the
+fake EV3 tree (``sysfs=True``).
+
 Start: like a person holding the robot, the world keeps the plant at the scenario's start
 pose while the firmware calibrates the gyro (about 1.1 s, with the scenario's gyro bias and
 noise), and releases it when the control loop starts; t = 0 in the results is that
@@ -28,17 +34,23 @@ the linear simulation, as on the robot:
   firmware's estimates, shifted by that offset) are in the scenario's frame; metrics measure
   the final displacement from d_origin_m.
 """
+import math
 import os
 import tempfile
 
 import numpy as np
 
+from hostsim.errors import TipbotError
 from hostsim.model.equations import RobotModel, state_scale_to_si
 from hostsim.model.params import load_params, scaled_params
+from hostsim.sim.brick_world import BrickWorld
 from hostsim.sim.result import RunResult
-from hostsim.world.plant import Plant
+from hostsim.world.brick_timing import AccessTimes, BrickClock, TimedIO
+from hostsim.world.drivetrain import DrivetrainPlant
+from hostsim.world.gyro import GyroModel
+from hostsim.world.plant import Plant, apply_push
 from hostsim.sim.scenario import disturbance_at
-from hostsim.world.sensors import SensorModel
+from hostsim.world.sensors import BatteryModel, EncoderModel, SensorModel
 from tipbot_fw import config as fw_config
 from tipbot_fw import logfile
 from tipbot_fw.calibration import sample_counts
@@ -47,24 +59,45 @@ from tipbot_fw.cues import QUIET as QUIET_CUES
 from tipbot_fw.devices import MemoryDevices
 from tipbot_fw.config import MOTOR_ROLES
 from tipbot_fw.gains import ACTUATED_INPUTS, gains_from_dict, load_gains
-from tipbot_fw.session import run_session
+from tipbot_fw.safety import DevicesMissing
+from tipbot_fw.session import log_refused_start, run_session
 
 DEFAULT_IO_LATENCY_S = 0.002
 PLANT_DT_S = 0.001
 _EPS_S = 1e-9
 
 
+# Coulomb friction is given as the duty that just starts a free motor at this battery voltage
+# (../shared/ev3-hardware.md: about 4 % on a Large motor, 10 % on a Medium one, at 8 V).
+DEADBAND_REFERENCE_V = 8.0
+# The fake EV3's random draws (brick timing, gyro effects) use their own generators, seeded
+# (scenario seed, stream), so that switching one effect leaves the others' draws alone.
+STREAM_TIMING, STREAM_GYRO = 1, 2
+
+
+class SimulationError(TipbotError):
+    """A scenario the firmware-in-the-loop simulation cannot run as asked."""
+
+
 def firmware_config(sc, rw_m, overrides=None):
-    """The firmware's configuration for a scenario: defaults + what the scenario implies."""
+    """The firmware's configuration for a scenario: defaults + what the scenario implies +
+    the scenario's firmware_config + overrides."""
     doc = {
         "start_pose_rad": {"th1": sc.x0_si[2], "th2": sc.x0_si[3], "th3": sc.x0_si[4]},
         "gyro_sign": int(sc.sensors.gyro_sign),
         "wheel_radius_m": rw_m,
         "realtime_priority": 0,
     }
-    if overrides:
-        doc.update(overrides)
-    return fw_config.config_from_overrides(doc, "<scenario %s>" % sc.name)
+    doc = _merged(_merged(doc, sc.firmware_config), overrides or {})
+    return fw_config.config_from_overrides(doc, "scenario %s, firmware_config" % sc.name)
+
+
+def _merged(base, extra):
+    """base with extra's fields in, nested objects merged field by field."""
+    out = dict(base)
+    for k, v in extra.items():
+        out[k] = _merged(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+    return out
 
 
 def calibration_end_s(config, ts_s):
@@ -89,7 +122,7 @@ class World:
         self.devices = None                     # MemoryDevices, when not on the fake
         self.ports = None                       # fake EV3 motor ports, in MOTOR_ROLES order
         self.battery_v = sc.sensors.battery_v
-        self.pushes = sorted((t_release_s + p.t_s, p.th1_dot_rad_s) for p in sc.pushes)
+        self.pushes = sorted(((t_release_s + p.t_s, p) for p in sc.pushes), key=lambda tp: tp[0])
         edges = {t for d in sc.disturbances for t in (d.t_start_s, d.t_end_s)}
         self.breaks = sorted({t_release_s + t for t in edges} | {t for t, _ in self.pushes})
         self.delay = [np.zeros(5)] * sc.extra_delay_ticks
@@ -113,6 +146,9 @@ class World:
     def read(self):
         """MemoryDevices source: the readings published at the current time."""
         return self.readings
+
+    def battery_reading(self):
+        return self.battery_v
 
     # -- what the firmware commands
     def duties(self):
@@ -168,7 +204,7 @@ class World:
     def _integrate(self, t0, t1, volts):
         while t1 - t0 > 1e-12:
             while self.pushes and self.pushes[0][0] <= t0 + _EPS_S:
-                self.plant.x[7] += self.pushes.pop(0)[1]
+                apply_push(self.plant, self.pushes.pop(0)[1])
             t_end = t1
             for b in self.breaks:
                 if t0 + _EPS_S < b < t_end - _EPS_S:
@@ -211,12 +247,22 @@ def run_firmware(sc, gains_path=None, gains_doc=None, sysfs=True, log_path=None,
     u_unsat (before saturation).
     """
     gains_path = gains_path or sc.gains
+    brick = sc.brick
+    if brick.timed and not sysfs:
+        raise SimulationError("scenario %s: the brick's timing (brick.*_access_s, compute_s, late wakes, stalls) "
+                              "acts through the fake EV3 tree: run it with the sysfs device" % sc.name)
     rng = np.random.default_rng(sc.seed)
     nominal = load_params() if params is None else params
     p = scaled_params(sc.param_scale, nominal)
     model = RobotModel(sc.plant_variant, p)
     to_model = 1.0 / np.diag(state_scale_to_si(model.variant))
-    plant = Plant(model, np.array(sc.x0_si) * to_model, dt_s=PLANT_DT_S, method=sc.plant_method)
+    x0_model = np.array(sc.x0_si) * to_model
+    if brick.drivetrain:
+        plant = DrivetrainPlant(model, x0_model, dt_s=PLANT_DT_S, method=sc.plant_method,
+                                friction_nm=friction_torques_nm(brick.friction_deadband_pct, p),
+                                backlash_rad=[math.radians(d) for d in brick.backlash_deg])
+    else:
+        plant = Plant(model, x0_model, dt_s=PLANT_DT_S, method=sc.plant_method)
     if gains_doc is not None:
         gains = gains_from_dict(gains_doc, "<%s gains for %s>" % (gains_doc["model_variant"], sc.name))
     else:
@@ -228,48 +274,100 @@ def run_firmware(sc, gains_path=None, gains_doc=None, sysfs=True, log_path=None,
                           gyro_bias_dps=s.gyro_bias_dps, gyro_noise_dps=s.gyro_noise_dps, rng=rng,
                           battery_v=s.battery_v)
     t_release = calibration_end_s(config, gains.ts_s)
+    ports = tuple(config["ports"][r] for r in MOTOR_ROLES)
     fake = None
     if sysfs:
         from hostsim.world.fake_ev3 import FakeEV3
         from tipbot_fw.ev3io import Ev3Devices
-        fake = FakeEV3(battery_v=s.battery_v)
-    world = World(sc, plant, sensors, gains.ts_s, t_release, fake=fake, io_latency_s=sc.io_latency_s, rng=rng)
-    clock = VirtualClock(on_sleep=world.on_sleep)
+        fake = FakeEV3(battery_v=s.battery_v, gyro_mode_write_s=brick.gyro_mode_write_s,
+                       gyro_mode_timeout=brick.gyro_mode_timeout)
+    if brick.ideal:
+        world = World(sc, plant, sensors, gains.ts_s, t_release, fake=fake, io_latency_s=sc.io_latency_s, rng=rng)
+        clock = VirtualClock(on_sleep=world.on_sleep)
+        io = None if fake is None else fake.io
+    else:
+        world = _brick_world(sc, plant, sensors, signs, p, config, gains.ts_s, t_release, fake, ports, rng)
+        clock = BrickClock(on_sleep=world.on_sleep)
+        io = None if fake is None else TimedIO(fake.io, fake, clock, world, world.times,
+                                               end_of_reads=fake.relpath(config["ports"]["gyro"], "bin_data"))
     world.clock = clock
     tmp = None
     if keep_rows and log_path is None:
         tmp = tempfile.TemporaryDirectory(prefix="tipbot-fil-")
         log_path = os.path.join(tmp.name, "run.log")
+    rows = None
     try:
         if sysfs:
-            world.ports = tuple(config["ports"][r] for r in MOTOR_ROLES)
-            devices = Ev3Devices(config, sysfs_root=fake.sysfs_root, io=fake.io)
+            world.ports = ports
+            try:
+                devices = Ev3Devices(config, sysfs_root=fake.sysfs_root, io=io)
+            except Exception as e:      # as tipbot_fw.cli: a header-only log that says why, exit 3
+                devices = None
+                error = DevicesMissing(" ".join(("%s: %s" % (type(e).__name__, e)).split()))
+                if log_path:
+                    log_refused_start(log_path, gains, config, sc.duration_s, error, say=lambda msg: None)
+                code, header = error.exit_code, {"stop_reason": error.reason, "stop_message": str(error)}
         else:
-            devices = MemoryDevices(source=world.read, battery_v=lambda: world.battery_v)
+            devices = MemoryDevices(source=world.read, battery_v=world.battery_reading)
             world.devices = devices
-        try:
-            code, header = run_session(devices, gains, config, clock, log_path=log_path,
-                                       duration_s=sc.duration_s, say=lambda msg: None, cues=QUIET_CUES)
-        finally:
-            devices.close()
-        rows = logfile.read_log(log_path)[1] if keep_rows and os.path.exists(log_path) else None
+        if devices is not None:
+            if isinstance(world, BrickWorld):
+                world.start_at(clock.t)   # a blocking set-up (the gyro's mode write) took this long
+            try:
+                code, header = run_session(devices, gains, config, clock, log_path=log_path,
+                                           duration_s=sc.duration_s, say=lambda msg: None, cues=QUIET_CUES)
+            finally:
+                devices.close()
+            rows = logfile.read_log(log_path)[1] if keep_rows and os.path.exists(log_path) else None
     finally:
         if fake is not None:
             fake.close()
         if tmp is not None:
             tmp.cleanup()
     if not world.released:                      # stopped at its first tick
-        world._record(t_release)
+        world._record(world.t_release_s)
     rw = config["wheel_radius_m"]
     x0 = sc.x0_si
-    d_origin = np.array([x0[0] - rw * x0[2], x0[1] - rw * x0[2]])
+    # The firmware counts its wheel position from R_w times the tilt it is told (module docstring).
+    th1_told = config["start_pose_rad"]["th1"]
+    d_origin = np.array([x0[0] - rw * th1_told, x0[1] - rw * th1_told])
     out = _world_side(world)
     if fake is not None:
         out["io_per_iteration"] = [fake.io.log[a:b] for a, b in zip(world.io_marks, world.io_marks[1:])]
     if rows is not None:
         out.update(_firmware_side(rows, d_origin, len(out["t_s"])))
+    if isinstance(world, BrickWorld):
+        out["duty_events"] = world.duty_events
     return RunResult(d_origin_m=d_origin, exit_code=code, stop_reason=header.get("stop_reason"), header=header,
                      completed=code == 0 and header.get("stop_reason") == "completed", **out)
+
+
+def friction_torques_nm(deadband_pct, params):
+    """Coulomb friction torque (N m, output side) per motor from its dead band: the duty (%)
+    at DEADBAND_REFERENCE_V that just overcomes it, through the motor's Km / Ra."""
+    return [pct / 100.0 * DEADBAND_REFERENCE_V * params[r + "_km_nm_a"] / params[r + "_ra_ohm"]
+            for pct, r in zip(deadband_pct, MOTOR_ROLES)]
+
+
+def _brick_world(sc, plant, sensors, signs, p, config, ts_s, t_release, fake, ports, rng):
+    """A BrickWorld for the scenario's brick effects."""
+    b = sc.brick
+    s = sc.sensors
+    gyro = None
+    if b.gyro_effects:
+        gyro = GyroModel(PLANT_DT_S, gyro_sign=int(s.gyro_sign), bias_dps=s.gyro_bias_dps,
+                         noise_dps=s.gyro_noise_dps, rng=rng, fx_rng=np.random.default_rng([sc.seed, STREAM_GYRO]),
+                         latency_s=b.gyro_latency_s, freeze_s=b.gyro_freeze_s,
+                         freeze_interval_s=b.gyro_freeze_interval_s, scale_error=b.gyro_scale_error,
+                         bias_walk_dps_rt_s=b.gyro_bias_walk_dps_rt_s, bias_ramp_dps_s=b.gyro_bias_ramp_dps_s,
+                         rate_step_dps=b.gyro_rate_step_dps)
+    encoders = EncoderModel(signs, sensors.counts_per_rot, PLANT_DT_S, b.encoder_update_s, b.encoder_truncate)
+    battery = BatteryModel(s.battery_v, b.battery_r_ohm, b.battery_quantum_v,
+                           [p[r + "_ke_v_s"] for r in MOTOR_ROLES], [p[r + "_ra_ohm"] for r in MOTOR_ROLES])
+    times = AccessTimes(b, np.random.default_rng([sc.seed, STREAM_TIMING])) if b.timed else None
+    settle, n = sample_counts(config["gyro_calibration"], ts_s)
+    return BrickWorld(sc, plant, sensors, encoders, gyro, battery, signs, ts_s, t_release, settle + n,
+                      fake=fake, ports=ports, rng=rng, times=times)
 
 
 def _world_side(world):
@@ -300,8 +398,10 @@ def _firmware_side(rows, d_origin, n):
     w_hat = block("w_r", 5)
     u_cmd = block("u_r", 5)
     u_unsat = block("u_cmd_r", 5)
+    flags = block("flags", 1)
+    tick = block("tick_s", 1)
     if len(rows) < n:
         pad = n - len(rows)
-        y, xhat, w_hat, u_cmd, u_unsat = (np.vstack([a, np.full((pad, a.shape[1]), np.nan)])
-                                          for a in (y, xhat, w_hat, u_cmd, u_unsat))
-    return dict(y=y, xhat=xhat, w_hat=w_hat, u_cmd=u_cmd, u_unsat=u_unsat)
+        y, xhat, w_hat, u_cmd, u_unsat, flags, tick = (np.vstack([a, np.full((pad, a.shape[1]), np.nan)])
+                                                       for a in (y, xhat, w_hat, u_cmd, u_unsat, flags, tick))
+    return dict(y=y, xhat=xhat, w_hat=w_hat, u_cmd=u_cmd, u_unsat=u_unsat, flags=flags[:, 0], tick_work_s=tick[:, 0])

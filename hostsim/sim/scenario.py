@@ -23,6 +23,12 @@ Each scenario runs in one or more ``modes`` (hostsim.studies.runner):
 
 ``controllers``: ``optimal`` (LQR + detector + K_w) and/or ``pd`` (the Appendix D
 baseline of hostsim.model.pd); each mode runs once per controller.
+
+``brick`` (firmware mode only): what makes the simulated EV3 as unkind as the real one, each
+effect off by default (``Brick``; realistic values, with their sources, in
+scenarios/brick_realistic.json; docs/architecture.md describes the models).
+``firmware_config``: fields of the firmware's configuration to override (e.g. the start
+pose it is told, which the plant's x0 need not match).
 """
 import dataclasses
 import os
@@ -53,12 +59,16 @@ DEFAULTS = {
     "xhat0_si": None,                 # initial estimate (linear, nonlinear); None: equal to x0
     "xhat0_paper_units": None,
     "disturbances": [],               # [{"t_start_s", "t_end_s", "w_v": [5]}]
-    "pushes": [],                     # [{"t_s", "th1_dot_rad_s"}]: an impulse on link 1
+    "pushes": [],                     # [{"t_s", "th1_dot_rad_s"}]: link 1's rate jumps, or
+                                      # [{"t_s", "link", "impulse_n_s"}]: a horizontal impulse
+                                      # at that link's centre of mass (forward positive)
     "sensors": {},                    # see SENSOR_DEFAULTS
     "extra_delay_ticks": 0,
     "io_latency_s": 0.002,            # firmware: tick start to its duties taking effect
     "jitter_s": 0.0,                  # std of the loop's wake-up jitter (firmware in the loop)
     "seed": 0,
+    "brick": {},                      # the simulated EV3's imperfections (Brick; firmware mode)
+    "firmware_config": {},            # overrides of the firmware's configuration
     "modes": ["linear", "firmware"],  # which simulations to run (MODES)
     "settle_band_rad": 0.02,          # |th1| band for the settling time
     "expect": {},                     # optional pass criteria checked by `hostsim run`
@@ -75,9 +85,12 @@ class Disturbance:
 
 @dataclasses.dataclass(frozen=True)
 class Push:
-    """An impulse on link 1: its rate jumps by th1_dot_rad_s at t_s."""
+    """At t_s, link 1's rate jumps by th1_dot_rad_s; or, with impulse_n_s, a horizontal
+    impulse (N s, forward positive) hits link ``link`` (1-3) at its centre of mass."""
     t_s: float
-    th1_dot_rad_s: float
+    th1_dot_rad_s: float = 0.0
+    link: int = 1
+    impulse_n_s: Optional[float] = None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -90,6 +103,69 @@ class Sensors:
 
 
 SENSOR_DEFAULTS = dataclasses.asdict(Sensors())
+
+
+@dataclasses.dataclass(frozen=True)
+class Brick:
+    """The simulated EV3's imperfections (firmware in the loop), all off by default.
+    Times in s, per-motor lists in the order right wheel, left wheel, joint 2, joint 3."""
+    # time (hostsim.world.brick_timing): each sysfs access, the tick's Python, the scheduler
+    tacho_access_s: tuple = (0.0, 0.0)     # a position read or duty write: uniform in [lo, hi]
+    sensor_access_s: tuple = (0.0, 0.0)    # a gyro bin_data or battery read
+    compute_s: tuple = (0.0, 0.0)          # the tick's own Python, between reads and writes
+    cpu_steal: float = 0.0                 # share of the CPU interrupts take: stretches all of it
+    late_wake_probability: float = 0.0     # a wake-up is late (a kernel thread holds the CPU) ...
+    late_wake_s: tuple = (0.0, 0.0)        # ... by U(lo, hi)
+    stall_rate_hz: float = 0.0             # multi-tick stalls (SD card, kernel threads) per second ...
+    stall_s: tuple = (0.0, 0.0)            # ... lasting U(lo, hi)
+    # encoders (hostsim.world.sensors.EncoderModel)
+    encoder_update_s: float = 0.0          # position updated this often (0: at the read)
+    encoder_truncate: bool = False         # whole edges passed instead of the nearest count
+    # motors (hostsim.world.drivetrain)
+    friction_deadband_pct: tuple = (0.0, 0.0, 0.0, 0.0)   # Coulomb friction: the duty at 8 V that starts a free motor
+    backlash_deg: tuple = (0.0, 0.0, 0.0, 0.0)            # free play at the output
+    # gyro (hostsim.world.gyro)
+    gyro_latency_s: float = 0.0
+    gyro_freeze_s: float = 0.0             # a UART overrun freezes the reading this long ...
+    gyro_freeze_interval_s: float = 0.0    # ... at exponential intervals of this mean (0: never)
+    gyro_scale_error: tuple = (0.0, 0.0)   # for positive, negative rates (sensor frame)
+    gyro_bias_walk_dps_rt_s: float = 0.0   # bias random walk, deg/s per sqrt(s)
+    gyro_bias_ramp_dps_s: float = 0.0      # bias drift, deg/s per s
+    gyro_rate_step_dps: float = 0.0        # the rate moves in steps of this (0: 1 deg/s)
+    gyro_mode_write_s: float = 0.0         # a mode write blocks this long (hostsim.world.fake_ev3)
+    gyro_mode_timeout: bool = False        # an old sensor: mode writes time out (ETIMEDOUT)
+    # battery (hostsim.world.sensors.BatteryModel)
+    battery_r_ohm: float = 0.0             # internal resistance: sags under the motors' current
+    battery_quantum_v: float = 0.0         # voltage_now resolution
+    sources: dict = dataclasses.field(default_factory=dict, compare=False)   # field -> where its value comes from
+
+    @property
+    def timed(self):
+        """Accesses and the scheduler cost time (hostsim.world.brick_timing)."""
+        return (self.tacho_access_s[1] > 0 or self.sensor_access_s[1] > 0 or self.compute_s[1] > 0
+                or (self.late_wake_probability > 0 and self.late_wake_s[1] > 0)
+                or (self.stall_rate_hz > 0 and self.stall_s[1] > 0))
+
+    @property
+    def drivetrain(self):
+        return any(self.friction_deadband_pct) or any(self.backlash_deg)
+
+    @property
+    def gyro_effects(self):
+        return bool(self.gyro_latency_s or (self.gyro_freeze_s and self.gyro_freeze_interval_s)
+                    or any(self.gyro_scale_error) or self.gyro_bias_walk_dps_rt_s or self.gyro_bias_ramp_dps_s
+                    or self.gyro_rate_step_dps)
+
+    @property
+    def ideal(self):
+        """Every effect off: today's world (hostsim.sim.fil.World)."""
+        return self == Brick()     # sources do not compare
+
+
+BRICK_FIELDS = tuple(f.name for f in dataclasses.fields(Brick))
+_RANGES = ("tacho_access_s", "sensor_access_s", "compute_s", "late_wake_s", "stall_s")
+_MOTOR_LISTS = ("friction_deadband_pct", "backlash_deg")
+_FLAGS = ("encoder_truncate", "gyro_mode_timeout")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -109,6 +185,8 @@ class Scenario:
     disturbances: tuple
     pushes: tuple
     sensors: Sensors
+    brick: Brick
+    firmware_config: dict
     extra_delay_ticks: int
     io_latency_s: float
     jitter_s: float
@@ -170,11 +248,19 @@ def parse_scenario(doc, src="<scenario>"):
         if w[2] != 0.0:
             f.fail(name + ".w_v[2]", "must be 0 (link 1 has no motor)")
     f.check("pushes", sc["pushes"], fields.array)
+    pushes = []
     for i, p in enumerate(sc["pushes"]):
         name = "pushes[%d]" % i
-        _exactly(f, name, p, ("t_s", "th1_dot_rad_s"))
-        f.check(name + ".t_s", p["t_s"], NON_NEGATIVE)
-        f.check(name + ".th1_dot_rad_s", p["th1_dot_rad_s"], fields.number())
+        if isinstance(p, dict) and "impulse_n_s" in p:
+            _exactly(f, name, p, ("t_s", "link", "impulse_n_s"))
+            f.check(name + ".link", p["link"], fields.one_of(1, 2, 3))
+            push = Push(f.number(name + ".t_s", p["t_s"], lo=0, lo_open=False), link=p["link"],
+                        impulse_n_s=f.number(name + ".impulse_n_s", p["impulse_n_s"]))
+        else:
+            _exactly(f, name, p, ("t_s", "th1_dot_rad_s"))
+            push = Push(f.number(name + ".t_s", p["t_s"], lo=0, lo_open=False),
+                        f.number(name + ".th1_dot_rad_s", p["th1_dot_rad_s"]))
+        pushes.append(push)
     f.check("sensors", sc["sensors"], fields.obj)
     f.known(sc["sensors"], SENSOR_DEFAULTS, "sensors.")
     sensors = dict(SENSOR_DEFAULTS)
@@ -185,6 +271,15 @@ def parse_scenario(doc, src="<scenario>"):
     f.check("sensors.battery_v", sensors["battery_v"], POSITIVE)
     f.check("sensors.gyro_sign", sensors["gyro_sign"], fields.one_of(1, -1))
     sc["sensors"] = sensors
+    sc["brick"] = _brick(f, sc["brick"])
+    f.check("firmware_config", sc["firmware_config"], fields.obj)
+    if sc["brick"].timed:
+        for k, off in (("jitter_s", 0.0), ("extra_delay_ticks", 0)):
+            if sc[k] != off:
+                f.fail(k, "must be %r with the brick's timing (brick.*_access_s, compute_s, late wakes, stalls "
+                          "replace it)" % off)
+        if "io_latency_s" in doc:
+            f.fail("io_latency_s", "does not apply with the brick's timing (each duty lands at its own write)")
     f.check("extra_delay_ticks", sc["extra_delay_ticks"], fields.number(lo=0, lo_open=False, integer=True))
     sc["jitter_s"] = f.number("jitter_s", sc["jitter_s"], lo=0, lo_open=False)
     sc["io_latency_s"] = f.number("io_latency_s", sc["io_latency_s"], lo=0, lo_open=False)
@@ -204,9 +299,52 @@ def parse_scenario(doc, src="<scenario>"):
               xhat0_si=None if sc["xhat0_si"] is None else tuple(sc["xhat0_si"]),
               disturbances=tuple(Disturbance(float(d["t_start_s"]), float(d["t_end_s"]), tuple(float(v) for v in d["w_v"]))
                                  for d in sc["disturbances"]),
-              pushes=tuple(Push(float(q["t_s"]), float(q["th1_dot_rad_s"])) for q in sc["pushes"]),
+              pushes=tuple(pushes), firmware_config=dict(sc["firmware_config"]),
               sensors=Sensors(**sensors), param_scale=dict(sc["param_scale"]), expect=dict(sc["expect"]))
     return Scenario(**sc)
+
+
+def _brick(f, doc):
+    """The ``brick`` object -> Brick, every field checked."""
+    f.check("brick", doc, fields.obj)
+    f.known(doc, BRICK_FIELDS, "brick.")
+    out = {}
+    for k, v in doc.items():
+        name = "brick." + k
+        if k == "sources":
+            f.check(name, v, fields.obj)
+            for field, text in v.items():
+                if field not in BRICK_FIELDS:
+                    f.fail("%s.%s" % (name, field), "names no brick field")
+                f.check("%s.%s" % (name, field), text, fields.nonempty_string)
+            out[k] = dict(v)
+        elif k in _FLAGS:
+            out[k] = f.check(name, v, fields.boolean)
+        elif k in _RANGES:
+            lo, hi = _vector(f, name, v, 2)
+            if not 0 <= lo <= hi:
+                f.fail(name, "must be [lo, hi] with 0 <= lo <= hi, got %r" % (v,))
+            out[k] = (lo, hi)
+        elif k in _MOTOR_LISTS:
+            values = _vector(f, name, v, 4)
+            hi = 100 if k == "friction_deadband_pct" else 90
+            for i, x in enumerate(v):
+                f.check("%s[%d]" % (name, i), x, fields.number(lo=0, hi=hi, lo_open=False))
+            out[k] = tuple(values)
+        elif k == "gyro_scale_error":
+            values = _vector(f, name, v, 2)
+            for i, x in enumerate(v):
+                f.check("%s[%d]" % (name, i), x, fields.number(lo=-0.5, hi=0.5, lo_open=False))
+            out[k] = tuple(values)
+        elif k == "gyro_bias_ramp_dps_s":
+            out[k] = f.number(name, v)
+        elif k in ("cpu_steal", "late_wake_probability"):
+            out[k] = f.number(name, v, lo=0, hi=0.9 if k == "cpu_steal" else 1.0, lo_open=False)
+        elif k == "gyro_mode_write_s":
+            out[k] = f.number(name, v, lo=0, hi=0.5, lo_open=False)
+        else:
+            out[k] = f.number(name, v, lo=0, lo_open=False)
+    return Brick(**out)
 
 
 def _exactly(f, name, value, keys):
