@@ -310,7 +310,7 @@ def scenario_plots(sc, runs, u_max_v, out_dir):
     return out
 
 
-def montecarlo_figure(results, path):
+def montecarlo_figure(results, path, title="parameter, sensor and timing uncertainty"):
     """Distributions of peak tilt and peak voltage per gains file, successes and failures."""
     fig, axes = plt.subplots(1, 3, figsize=(15, 3.8))
     for i, (name, res) in enumerate(results.items()):
@@ -336,8 +336,41 @@ def montecarlo_figure(results, path):
     for ax in axes:
         ax.legend(fontsize=7)
         ax.grid(True, linewidth=0.3)
-    fig.suptitle("Monte Carlo: firmware in the loop under parameter, sensor and timing uncertainty", fontsize=10)
+    fig.suptitle("Monte Carlo: firmware in the loop, %s" % title, fontsize=10)
     fig.tight_layout(rect=(0, 0, 1, 0.93))
+    return _write(fig, path)
+
+
+def margins_figure(res, path):
+    """One panel per effect: the largest value each gains file balances with (each sign where
+    there are two; a triangle: at least that, the search's end), the realistic brick's dashed."""
+    from hostsim.studies.margins import MARGINS
+    labels = sorted({r["gains"] for r in res["margins"]})
+    fig, axes = plt.subplots(1, len(MARGINS), figsize=(2.4 * len(MARGINS), 3.4))
+    for ax, m in zip(axes, MARGINS):
+        names, values, beyond = [], [], []
+        for label in labels:
+            for r in sorted((r for r in res["margins"] if r["gains"] == label and r["effect"] == m.key),
+                            key=lambda r: -r["sign"]):
+                names.append(label + ("" if len(m.signs) == 1 else (" +" if r["sign"] > 0 else " -")))
+                values.append(0.0 if r["margin"] is None else r["margin"])
+                beyond.append(r["at_least"])
+        x = np.arange(len(values))
+        ax.bar(x, values, color=["C%d" % labels.index(n.split(" ")[0]) for n in names])
+        for xi, v, b in zip(x, values, beyond):
+            if b:
+                ax.plot(xi, v, marker="^", color="k", markersize=5)
+        if m.realistic_value is not None:
+            ax.axhline(m.realistic_value, color="k", linestyle="--", linewidth=0.8, label="realistic brick")
+            ax.legend(fontsize=6, loc="upper right")
+        ax.set_xticks(x)
+        ax.set_xticklabels(names, rotation=45, ha="right", fontsize=7)
+        ax.set_title("%s [%s]" % (m.label, m.unit), fontsize=8)
+        ax.tick_params(axis="y", labelsize=7)
+        ax.grid(True, axis="y", linewidth=0.3)
+    fig.suptitle("Largest value of each effect alone at which the robot still balances %g s "
+                 "(bars; triangle: the search's upper end)" % res["_meta"]["duration_s"], fontsize=9)
+    fig.tight_layout(rect=(0, 0, 1, 0.92))
     return _write(fig, path)
 
 

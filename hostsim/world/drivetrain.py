@@ -36,7 +36,8 @@ from hostsim.world.plant import Plant
 from tipbot_fw.config import MOTOR_ROLES
 from tipbot_fw.gains import ACTUATED_INPUTS
 
-# A locked motor whose load still moves faster than this (a push) is no longer stuck.
+# A locked motor whose load moves faster than this (a push) is no longer stuck; below it a
+# speed is round-off of the projection that locked it.
 STUCK_SPEED_RAD_S = 1e-6
 
 _HEUN = ((), (1.0,)), (0.5, 0.5)
@@ -161,7 +162,9 @@ class DrivetrainPlant(Plant):
             v = m.omega if m.free else x[5 + i0] * a0 + x[5 + i1] * a1
             if m.stuck and not m.free and abs(v) > STUCK_SPEED_RAD_S:
                 m.stuck = False                 # pushed loose
-            if not m.stuck and m.tau > 0.0 and v != 0.0:
+            if not m.stuck and m.tau > 0.0 and abs(v) > STUCK_SPEED_RAD_S:
+                # (a motor just released keeps the direction it broke away in: its speed
+                # is still a round-off away from zero, of either sign)
                 m.slip = 1.0 if v > 0.0 else -1.0
             if m.free:
                 u_eff[m.inp] = 0.0
@@ -288,6 +291,7 @@ class DrivetrainPlant(Plant):
 
     def _events(self, x, u, qdd):
         moved = False        # an impulse changed the load's speeds
+        stopping = []        # engaged motors whose motion stopped (or reversed) in this step
         for m in self.motors:
             a = m.a
             if m.free:
@@ -316,26 +320,43 @@ class DrivetrainPlant(Plant):
                         else:
                             m.slip = _sign(drive)
                 continue
-            v = _dot(a, x[5:])
             if m.stuck:
                 if abs(m.lam) > m.tau:
                     m.stuck, m.slip = False, -_sign(m.lam)
-            elif m.tau > 0.0 and m.slip * v <= 0.0:
-                # stopped under friction: locked (its remaining speed is zeroed below)
-                m.stuck, m.lam = True, 0.0
-                v = 0.0
-                moved = True
-            if m.gap > 0.0:
-                tau_m = m.k_v * u[m.inp] - m.c * v
-                if m.stuck:
-                    contact = tau_m + m.lam
-                else:
-                    contact = tau_m - m.tau * m.slip - m.jm * _dot(a, qdd)
-                if m.side * contact < 0.0:            # the rotor would pull: it lets go
-                    m.free = True
-                    m.phi = _dot(a, x[:5]) + 0.5 * m.side * m.gap
-                    m.omega = 0.0 if m.stuck else v
+            elif m.tau > 0.0 and m.slip * _dot(a, x[5:]) <= 0.0:
+                stopping.append(m)
+                continue
+            self._separation(m, x, u, qdd)
+        if stopping:
+            # At rest, does friction hold them? Lock them (their remaining speed, a step's
+            # worth of deceleration, zeroed with the other locked motors'), then ask what
+            # torque holding them takes: beyond friction, they go on the other way at once.
+            for m in stopping:
+                m.stuck = True
+            x = self._project(x)
+            u_eff, e, locked, free = self._modes(x, u)
+            qdd = self._accel(x, u_eff, e, [m.a for m in locked], locked, free)
+            for m in stopping:
+                if abs(m.lam) > m.tau:
+                    m.stuck, m.slip = False, -_sign(m.lam)
+                self._separation(m, x, u, qdd)
+            return x
         return self._project(x) if moved else x
+
+    def _separation(self, m, x, u, qdd):
+        """An engaged motor with backlash lets go of its load when the contact would pull."""
+        if m.gap > 0.0:
+            a = m.a
+            v = _dot(a, x[5:])
+            tau_m = m.k_v * u[m.inp] - m.c * v
+            if m.stuck:
+                contact = tau_m + m.lam
+            else:
+                contact = tau_m - m.tau * m.slip - m.jm * _dot(a, qdd)
+            if m.side * contact < 0.0:
+                m.free = True
+                m.phi = _dot(a, x[:5]) + 0.5 * m.side * m.gap
+                m.omega = 0.0 if m.stuck else v
 
 
 def _gauss(g, b):

@@ -7,9 +7,11 @@ fields, realistic values in scenarios/brick_realistic.json with their sources):
 
 - ``latency_s``: the reading reflects the robot that long ago (a G&A message takes about
   1 ms on the 57600-baud UART, plus the sensor's and the driver's own time);
-- ``freeze_s`` / ``freeze_interval_s``: now and then (exponential intervals of that mean)
-  a UART buffer overrun freezes the reading for ``freeze_s`` (about 42 ms), after which it
-  jumps to the current value (the sensor resyncs);
+- ``freeze_s`` / ``freeze_interval_s``: now and then (overruns start at exponential
+  intervals of that mean, none during a freeze) a UART buffer overrun freezes the reading for
+  ``freeze_s`` (about 42 ms), after which it jumps to the current value (the sensor resyncs);
+  the start times do not depend on ``freeze_s`` while freezes do not overlap, so a longer
+  freeze is the same run with longer freezes;
 - ``scale_error``: (error for positive rates, error for negative rates) in the sensor's
   frame: a 360 deg turn one way reads about 353 deg (-2 %), the other way about 361;
 - ``bias_walk_dps_rt_s`` and ``bias_ramp_dps_s``: the bias wanders (a random walk of that
@@ -64,7 +66,7 @@ class GyroModel(object):
         # (t, measured rate, angle) at the last steps: as far back as the latency reaches
         self.history = collections.deque(maxlen=max(2, int(math.ceil(self.latency_s / self.dt_s)) + 2))
         self.history.append((0.0, 0.0, 0.0))
-        self.freeze_start = self._next_freeze(0.0)
+        self.freeze_start = self._next_freeze(0.0, 0.0)
         self.frozen = None             # (until, reading) during a freeze
         self.freezes = []              # (start, end) of every freeze so far
 
@@ -76,9 +78,10 @@ class GyroModel(object):
             self._normals = self.fx_rng.standard_normal(_BLOCK).tolist()
         return self._normals.pop()
 
-    def _next_freeze(self, after):
+    def _next_freeze(self, start, end):
+        """The next overrun after one from start to end."""
         if self.freeze_s > 0 and self.freeze_interval_s > 0:
-            return after + float(self.fx_rng.exponential(self.freeze_interval_s))
+            return max(start + float(self.fx_rng.exponential(self.freeze_interval_s)), end)
         return math.inf
 
     def on_step(self, t_s, th1_dot_rad_s):
@@ -106,12 +109,12 @@ class GyroModel(object):
             if t_s < self.frozen[0]:
                 return self.frozen[1]
             self.frozen = None
-        if t_s >= self.freeze_start:
+        while t_s >= self.freeze_start:
             # an overrun at freeze_start: the reading from then on stays as it was
             until = self.freeze_start + self.freeze_s
             held = self._reading(self.freeze_start)
             self.freezes.append((self.freeze_start, until))
-            self.freeze_start = self._next_freeze(until)
+            self.freeze_start = self._next_freeze(self.freeze_start, until)
             if t_s < until:
                 self.frozen = (until, held)
                 return held
