@@ -97,6 +97,16 @@ def test_every_duty_lands_at_its_own_moment_in_the_tick():
         assert 0.002 < offsets[0] and offsets[-1] < 0.0045
 
 
+def test_the_timed_gyro_reaches_the_firmware_after_its_mode_switch():
+    """Reads published at their own moments still see the gyro come out of its mode switch:
+    the calibration finds the scenario's bias, and the balancing reads move."""
+    sc = scenario(duration_s=0.5, tacho_access_s=TACHO)
+    sc = dataclasses.replace(sc, sensors=dataclasses.replace(sc.sensors, gyro_bias_dps=1.5))
+    run = run_firmware(sc, gains_doc=kw0())
+    assert run.header["calibration"]["gyro_bias_dps"] == pytest.approx(1.5, abs=0.5)
+    assert np.ptp(run.y[:, 7]) > 0.05
+
+
 def test_the_firmware_sees_real_lateness_and_stops_on_overruns():
     slow = scenario(duration_s=1.0, tacho_access_s=(0.0006, 0.0007), compute_s=(0.0008, 0.0009))
     run = run_firmware(slow, gains_doc=kw0())

@@ -186,6 +186,7 @@ class BrickWorld(object):
         self.catch_up(t)
         i = self._port_index.get(rel)
         fake = self.fake
+        fake.set_time(t)
         if i is not None:
             fake.set_encoder_counts(self.ports[i], self._encoder_counts()[i])
         elif rel.endswith("bin_data"):

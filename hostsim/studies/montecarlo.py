@@ -232,7 +232,9 @@ def summarize(rows):
     reasons = {}
     for r in rows:
         if not r["success"]:
-            reasons[r["stop_reason"] or "?"] = reasons.get(r["stop_reason"] or "?", 0) + 1
+            # a run that completed failed the upright criterion
+            why = "tilted" if r["stop_reason"] == "completed" else (r["stop_reason"] or "?")
+            reasons[why] = reasons.get(why, 0) + 1
     return {
         "runs": n, "successes": len(ok), "success_rate": len(ok) / n if n else None,
         "refused": n - len(started), "failures_by_reason": reasons,

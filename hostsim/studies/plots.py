@@ -310,7 +310,7 @@ def scenario_plots(sc, runs, u_max_v, out_dir):
     return out
 
 
-def montecarlo_figure(results, path, title="parameter, sensor and timing uncertainty"):
+def montecarlo_figure(results, path, what="parameter, sensor and timing uncertainty"):
     """Distributions of peak tilt and peak voltage per gains file, successes and failures."""
     fig, axes = plt.subplots(1, 3, figsize=(15, 3.8))
     for i, (name, res) in enumerate(results.items()):
@@ -336,7 +336,7 @@ def montecarlo_figure(results, path, title="parameter, sensor and timing uncerta
     for ax in axes:
         ax.legend(fontsize=7)
         ax.grid(True, linewidth=0.3)
-    fig.suptitle("Monte Carlo: firmware in the loop, %s" % title, fontsize=10)
+    fig.suptitle("Monte Carlo: firmware in the loop, %s" % what, fontsize=10)
     fig.tight_layout(rect=(0, 0, 1, 0.93))
     return _write(fig, path)
 
@@ -358,18 +358,20 @@ def margins_figure(res, path):
         x = np.arange(len(values))
         ax.bar(x, values, color=["C%d" % labels.index(n.split(" ")[0]) for n in names])
         for xi, v, b in zip(x, values, beyond):
+            ax.annotate("%g" % round(v, 4), (xi, v), ha="center", va="bottom", fontsize=6)
             if b:
                 ax.plot(xi, v, marker="^", color="k", markersize=5)
         if m.realistic_value is not None:
-            ax.axhline(m.realistic_value, color="k", linestyle="--", linewidth=0.8, label="realistic brick")
-            ax.legend(fontsize=6, loc="upper right")
+            ax.axhline(m.realistic_value, color="k", linestyle="--", linewidth=0.8)
+        ax.set_ylim(0, 1.15 * max(values + [m.realistic_value or 0.0]) or 1.0)
         ax.set_xticks(x)
         ax.set_xticklabels(names, rotation=45, ha="right", fontsize=7)
         ax.set_title("%s [%s]" % (m.label, m.unit), fontsize=8)
         ax.tick_params(axis="y", labelsize=7)
         ax.grid(True, axis="y", linewidth=0.3)
     fig.suptitle("Largest value of each effect alone at which the robot still balances %g s "
-                 "(bars; triangle: the search's upper end)" % res["_meta"]["duration_s"], fontsize=9)
+                 "(bars; triangle: at least that, the search's upper end; dashed: the realistic brick)"
+                 % res["_meta"]["duration_s"], fontsize=9)
     fig.tight_layout(rect=(0, 0, 1, 0.92))
     return _write(fig, path)
 

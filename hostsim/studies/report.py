@@ -285,6 +285,20 @@ def brick_summary(doc):
                 100 * (m.get("overrun_fraction") or 0.0)))
 
 
+def brick_table(doc):
+    """The scenario's brick effects that are on, with their values and where they come from."""
+    from hostsim.sim.scenario import Brick
+    brick = doc.get("brick") or {}
+    sources = brick.get("sources", {})
+    off = Brick()
+    rows = ["| field | value | source |", "|---|---|---|"]
+    listed = lambda v: list(v) if isinstance(v, (list, tuple)) else v    # JSON gives lists, Brick tuples
+    for k, v in brick.items():
+        if k != "sources" and listed(v) != listed(getattr(off, k)):
+            rows.append("| `%s` | %s | %s |" % (k, listed(v), _md(sources.get(k, "-"))))
+    return "\n".join(rows)
+
+
 def margins_section(margins):
     from hostsim.studies.margins import BASE_SCENARIO, MARGINS, ablation_table, costliest, margin_table
     meta = margins["_meta"]
@@ -307,8 +321,8 @@ def margins_section(margins):
                   "each alone; %d seed(s) per row (`balanced`: how many balanced)."
                   % (meta["overrun_limit_lifted"], meta["seeds"]), "",
                   ablation_table(margins, markdown=True), "",
-                  "Costliest effect (the one whose removal helps most): %s." % ", ".join(
-                      "%s gains: %s" % (l, costliest(margins, l)) for l in labels), ""]
+                  "Effects by what each costs alone, costliest first: %s." % "; ".join(
+                      "%s gains: %s" % (l, ", ".join(costliest(margins, l))) for l in labels), ""]
     return lines
 
 
@@ -335,7 +349,7 @@ def write_report(out_dir, docs, roa=None, mc=None, extra_notes=(), firmware_note
                 "/".join(sorted(set(pd["units"]))), pd["cost"], pd["lqr_cost"], pd["cost"] / pd["lqr_cost"],
                 ", ".join("%s %.4g" % kv for kv in pd["gains"].items())), ""]
         if name == "brick_realistic":
-            lines += [brick_summary(doc), ""]
+            lines += [brick_summary(doc), "", brick_table(doc), ""]
         lines += [_figures(doc, name), ""]
     lines += ["## Where the paper's claims cannot hold", "", cannot_hold(docs, roa), ""]
     lines += ["## Robustness", ""]

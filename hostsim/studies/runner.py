@@ -76,7 +76,7 @@ def run_and_write(sc, out_dir, modes=None, sysfs=True, plots=True, say=None):
         "duration_s": sc.duration_s,
         "u_max_v": gs.u_max_v,
         "firmware_device": "fake EV3 sysfs" if sysfs or sc.brick.timed else "in-memory",
-        "brick": {k: v for k, v in dataclasses.asdict(sc.brick).items() if k != "sources"},
+        "brick": dataclasses.asdict(sc.brick),
         "runs": per_run,
         "expect": expect_report,
         "expect_ok": ok,

@@ -624,6 +624,11 @@ class FakeEV3(object):
             self._poll_gyro(self._gyro)
         return {port: m.state() for port, m in self._motors.items()}
 
+    def set_time(self, t_s):
+        """The driver's time now (s), as poll(t_s) gives it, without polling (the gyro's
+        mode switch delay runs on it)."""
+        self.now_s = t_s
+
     def poll_attribute(self, relpath, t_s=None):
         """What :meth:`poll` does, for one attribute a client just wrote (``relpath`` as
         CountingIO names it): a driver that sees every write (hostsim.world.brick_timing)
