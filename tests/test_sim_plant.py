@@ -15,15 +15,21 @@ from conftest import gains_path
 VARIANTS = ("paper", "physical")
 
 
+def random_state(rng):
+    """A state and inputs (u_th1 = 0) far and wide around the upright."""
+    x = list(rng.normal(size=10) * [0.3, 0.3, 1, 1, 1, 1, 1, 3, 3, 3])
+    u = list(rng.normal(size=5) * 5)
+    u[2] = 0.0
+    return x, u
+
+
 @pytest.mark.parametrize("variant", VARIANTS)
 def test_compiled_derivative_is_bit_identical(variant, params):
     model = RobotModel(variant, params)
     deriv, pre = fastdyn.compile_model(model)
     rng = np.random.default_rng(3)
     for _ in range(300):
-        x = list(rng.normal(size=10) * [0.3, 0.3, 1, 1, 1, 1, 1, 3, 3, 3])
-        u = list(rng.normal(size=5) * 5)
-        u[2] = 0.0
+        x, u = random_state(rng)
         m, f = model.mass_matrix_forcing(x[:5], x[5:], u)
         assert deriv(x, u, pre) == x[5:] + solve_spd5(m, f)
 
@@ -66,9 +72,7 @@ def test_extended_derivative_adds_to_m_and_f_and_solves_extra_right_hand_sides(p
     ext, pre_ext = fastdyn.compile_model_ext(model)
     rng = np.random.default_rng(5)
     for _ in range(50):
-        x = list(rng.normal(size=10) * [0.3, 0.3, 1, 1, 1, 1, 1, 3, 3, 3])
-        u = list(rng.normal(size=5) * 5)
-        u[2] = 0.0
+        x, u = random_state(rng)
         assert ext(x, u, pre_ext, [0.0] * 20, []) == deriv(x, u, pre)
         e = list(np.abs(rng.normal(size=20)) * 1e-5)
         rhs = [list(rng.normal(size=5)), [0.0, 0.0, 0.0, 1.0, 0.0]]

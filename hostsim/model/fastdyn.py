@@ -146,16 +146,22 @@ def compile_source(module_source):
 
 
 def _extra_solve_lines():
-    """Forward and back substitution with the factor of _cholesky_lines, for each r in rhs."""
+    """The triangular solves of _cholesky_lines again, for each r in rhs."""
+    return (["    for r in rhs:"] + _solve_lines("r[%d]", "z", "s", "        ")
+            + ["        out += [%s]" % ", ".join("s%d" % i for i in range(N_Q))])
+
+
+def _solve_lines(rhs, y, x, indent):
+    """L y = rhs, then L^T x = y, with the factor l<i><j> of _cholesky_lines (rhs: a format of
+    the entry's index; y, x: prefixes of the locals)."""
     n = N_Q
-    out = ["    for r in rhs:"]
+    out = []
     for i in range(n):
-        terms = "".join(" - l%d%d * z%d" % (i, k, k) for k in range(i))
-        out.append("        z%d = (r[%d]%s) / l%d%d" % (i, i, terms, i, i))
+        terms = "".join(" - l%d%d * %s%d" % (i, k, y, k) for k in range(i))
+        out.append("%s%s%d = (%s%s) / l%d%d" % (indent, y, i, rhs % i, terms, i, i))
     for i in range(n - 1, -1, -1):
-        terms = "".join(" - l%d%d * s%d" % (k, i, k) for k in range(i + 1, n))
-        out.append("        s%d = (z%d%s) / l%d%d" % (i, i, terms, i, i))
-    out.append("        out += [%s]" % ", ".join("s%d" % i for i in range(n)))
+        terms = "".join(" - l%d%d * %s%d" % (k, i, x, k) for k in range(i + 1, n))
+        out.append("%s%s%d = (%s%d%s) / l%d%d" % (indent, x, i, y, i, terms, i, i))
     return out
 
 
@@ -173,12 +179,7 @@ def _cholesky_lines(qd_names):
                 out.append("    l%d%d = sqrt(s)" % (i, i))
             else:
                 out.append("    l%d%d = (m%d%d%s) / l%d%d" % (i, j, i, j, terms, j, j))
-    for i in range(n):
-        terms = "".join(" - l%d%d * y%d" % (i, k, k) for k in range(i))
-        out.append("    y%d = (f%d%s) / l%d%d" % (i, i, terms, i, i))
-    for i in range(n - 1, -1, -1):
-        terms = "".join(" - l%d%d * a%d" % (k, i, k) for k in range(i + 1, n))
-        out.append("    a%d = (y%d%s) / l%d%d" % (i, i, terms, i, i))
+    out += _solve_lines("f%d", "y", "a", "    ")
     out.append("    return [%s, %s]" % (", ".join(qd_names), ", ".join("a%d" % i for i in range(n))))
     return out
 

@@ -36,7 +36,34 @@ from tipbot_fw.gains import ACTUATED_INPUTS
 _EPS_S = 1e-9
 
 
-class BrickWorld(object):
+class Lockstep(object):
+    """What a world does when the firmware's loop sleeps, whichever world: the release, the
+    marks between iterations in the fake's I/O log, the wake-up jitter, the records. Needs
+    sc, fake, rng, clock, t_release_s, released, io_marks, log_t, log_x, plant."""
+
+    def _wake(self, t_from, t_to, dt):
+        """A loop iteration ended at t_from and sleeps until t_to: release the plant at the
+        first one, mark the I/O log, make the wake-up late by |N(0, jitter_s)| (whole plant
+        steps of dt). -> (t_from, t_to) as they are."""
+        t_from = max(t_from, self.t_release_s)
+        if not self.released:
+            self.released = True
+            self._record(t_from)
+        if self.fake is not None:
+            # Where each loop iteration's sysfs operations end in the fake's client-I/O log.
+            self.io_marks.append(len(self.fake.io.log))
+        if self.sc.jitter_s > 0:
+            late = abs(self.rng.normal(0.0, self.sc.jitter_s))
+            t_to = t_to + round(late / dt) * dt
+            self.clock.t = t_to
+        return t_from, t_to
+
+    def _record(self, t):
+        self.log_t.append(t - self.t_release_s)
+        self.log_x.append(self.plant.x_si)
+
+
+class BrickWorld(Lockstep):
     """Plant + sensor models (+ fake EV3) on a 1 ms grid, advanced by the firmware's clock.
 
     plant: a Plant or DrivetrainPlant; encoders: EncoderModel; gyro: GyroModel, or None for
@@ -262,16 +289,7 @@ class BrickWorld(object):
             self.catch_up(t_to)
             self.publish(t_to)
             return
-        t_from = max(t_from, self.t_release_s)
-        if not self.released:
-            self.released = True
-            self._record(t_from)
-        if self.fake is not None:
-            self.io_marks.append(len(self.fake.io.log))
-        if self.sc.jitter_s > 0:
-            late = abs(self.rng.normal(0.0, self.sc.jitter_s))
-            t_to = t_to + round(late / self.dt) * self.dt
-            self.clock.t = t_to
+        t_from, t_to = self._wake(t_from, t_to, self.dt)
         self.delay.append(self._commanded())
         new = self.delay.pop(0)
         t_switch = min(t_from + self.sc.io_latency_s, t_to)
@@ -294,7 +312,3 @@ class BrickWorld(object):
         for i in range(4):
             v[ACTUATED_INPUTS[i]] = self._latest(i) * self.battery_v
         return np.array(v)
-
-    def _record(self, t):
-        self.log_t.append(t - self.t_release_s)
-        self.log_x.append(self.plant.x_si)

@@ -43,7 +43,7 @@ import numpy as np
 from hostsim.errors import TipbotError
 from hostsim.model.equations import RobotModel, state_scale_to_si
 from hostsim.model.params import load_params, scaled_params
-from hostsim.sim.brick_world import BrickWorld
+from hostsim.sim.brick_world import BrickWorld, Lockstep
 from hostsim.sim.result import RunResult
 from hostsim.world.brick_timing import AccessTimes, BrickClock, TimedIO
 from hostsim.world.drivetrain import DrivetrainPlant
@@ -106,7 +106,7 @@ def calibration_end_s(config, ts_s):
     return (settle + n - 1) * ts_s
 
 
-class World:
+class World(Lockstep):
     """Plant + sensors (+ fake EV3), advanced by the firmware's clock."""
 
     def __init__(self, sc, plant, sensors, ts_s, t_release_s, fake=None, io_latency_s=DEFAULT_IO_LATENCY_S,
@@ -170,17 +170,7 @@ class World:
         if t_to <= self.t_release_s + _EPS_S:          # held still while calibrating
             self.publish(t_to)
             return
-        t_from = max(t_from, self.t_release_s)
-        if not self.released:
-            self.released = True
-            self._record(t_from)
-        if self.fake is not None:
-            # Where each loop iteration's sysfs operations end in the fake's client-I/O log.
-            self.io_marks.append(len(self.fake.io.log))
-        if self.sc.jitter_s > 0:
-            late = abs(self.rng.normal(0.0, self.sc.jitter_s))
-            t_to = t_to + round(late / PLANT_DT_S) * PLANT_DT_S
-            self.clock.t = t_to
+        t_from, t_to = self._wake(t_from, t_to, PLANT_DT_S)
         self.delay.append(self.motor_volts())
         v_new = self.delay.pop(0)
         t_switch = min(t_from + self.io_latency_s, t_to)
@@ -191,10 +181,6 @@ class World:
         self.log_w.append(self._w(t_switch, t_to))
         self._record(t_to)
         self.publish(t_to)
-
-    def _record(self, t):
-        self.log_t.append(t - self.t_release_s)
-        self.log_x.append(self.plant.x_si)
 
     def _w(self, t0, t1):
         # The disturbance over a piece without edges: sampled mid-piece, so rounding of the

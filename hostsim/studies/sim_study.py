@@ -125,25 +125,20 @@ def main(argv=None):
         print()
     print("(%s)" % runner.SUMMARY_NOTE)
     print()
-    if roa_res:
-        print("Region of attraction (largest recovered initial angle)")
-        print(roa.format_table(roa_res))
-        print()
-    if mc_res:
-        print("Monte Carlo (firmware in the loop, physical model)")
-        print(montecarlo.format_table(mc_res))
-        print()
-    if mc_brick:
-        print("Monte Carlo on the realistic brick")
-        print(montecarlo.format_table(mc_brick))
-        print()
-    if margins_res:
-        print("Margins: the largest value of each effect alone at which the robot still balances (coarse)")
-        print(margins.margin_table(margins_res))
-        print()
-        print("The realistic brick: as shipped, then with the overrun stop lifted")
-        print(margins.ablation_table(margins_res))
-        print()
+    tables = [
+        ("Region of attraction (largest recovered initial angle)", roa_res and roa.format_table(roa_res)),
+        ("Monte Carlo (firmware in the loop, physical model)", mc_res and montecarlo.format_table(mc_res)),
+        ("Monte Carlo on the realistic brick", mc_brick and montecarlo.format_table(mc_brick)),
+        ("Margins: the largest value of each effect alone at which the robot still balances (coarse)",
+         margins_res and margins.margin_table(margins_res)),
+        ("The realistic brick: as shipped, then with the overrun stop lifted",
+         margins_res and margins.ablation_table(margins_res)),
+    ]
+    for title, table in tables:
+        if table:
+            print(title)
+            print(table)
+            print()
     if note:
         print(note)
         print()
