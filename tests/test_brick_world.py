@@ -158,9 +158,10 @@ def test_the_battery_sags_and_reads_in_steps_in_the_firmwares_log(tmp_path):
     assert volts.min() < header["battery_v_start"] - 0.005     # read under load a second later
 
 
-def test_the_brick_timing_needs_the_sysfs_device():
+@pytest.mark.parametrize("brick", [dict(tacho_access_s=TACHO), dict(gyro_mode_timeout=True)])
+def test_the_brick_timing_and_mode_writes_need_the_sysfs_device(brick):
     with pytest.raises(SimulationError, match="sysfs device"):
-        run_firmware(scenario(tacho_access_s=TACHO), gains_doc=kw0(), sysfs=False)
+        run_firmware(scenario(**brick), gains_doc=kw0(), sysfs=False)
 
 
 def test_the_realistic_preset():

@@ -234,9 +234,10 @@ def run_firmware(sc, gains_path=None, gains_doc=None, sysfs=True, log_path=None,
     """
     gains_path = gains_path or sc.gains
     brick = sc.brick
-    if brick.timed and not sysfs:
+    if brick.needs_sysfs and not sysfs:
         raise SimulationError("scenario %s: the brick's timing (brick.*_access_s, compute_s, late wakes, stalls) "
-                              "acts through the fake EV3 tree: run it with the sysfs device" % sc.name)
+                              "and the gyro's mode write act through the fake EV3 tree: run it with the sysfs "
+                              "device" % sc.name)
     rng = np.random.default_rng(sc.seed)
     nominal = load_params() if params is None else params
     p = scaled_params(sc.param_scale, nominal)

@@ -147,6 +147,11 @@ class Brick:
                 or (self.stall_rate_hz > 0 and self.stall_s[1] > 0))
 
     @property
+    def needs_sysfs(self):
+        """Effects that act through the fake EV3 tree: the timing, the gyro's mode write."""
+        return self.timed or self.gyro_mode_write_s > 0 or self.gyro_mode_timeout
+
+    @property
     def drivetrain(self):
         return any(self.friction_deadband_pct) or any(self.backlash_deg)
 

@@ -172,7 +172,7 @@ def ablation_run(task):
         sc = dataclasses.replace(sc, firmware_config=dict(sc.firmware_config,
                                                           limits={"max_consecutive_overruns": OVERRUN_LIMIT_LIFTED}))
     t0 = time.perf_counter()
-    run = _run(sc, gains_path, sysfs=brick.timed, keep_rows=True)
+    run = _run(sc, gains_path, sysfs=brick.needs_sysfs, keep_rows=True)
     return dict(run_summary(run), gains=label, off=group or "none (all on)", seed=seed, lifted=lifted,
                 wall_s=time.perf_counter() - t0)
 

@@ -152,8 +152,8 @@ def run_one(task):
     d = draw(np.random.default_rng([seed, index]), base.brick)
     sc = scenario_for(base, d, duration_s)
     t0 = time.perf_counter()
-    # the brick's timing acts through the fake EV3 tree; otherwise the in-memory device is faster
-    run = run_firmware(sc, gains_doc=gains_document(gains_path, zero_kw), sysfs=sc.brick.timed, keep_rows=False)
+    # the brick's timing and mode writes act through the fake EV3 tree; otherwise memory is faster
+    run = run_firmware(sc, gains_doc=gains_document(gains_path, zero_kw), sysfs=sc.brick.needs_sysfs, keep_rows=False)
     wall = time.perf_counter() - t0
     x, u = run.x, run.u
     th1 = np.abs(x[:, 2])
