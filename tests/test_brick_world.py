@@ -117,6 +117,13 @@ def test_the_firmware_sees_real_lateness_and_stops_on_overruns():
     assert np.nanmedian(run.tick_work_s) > 0.004
 
 
+def test_interrupts_stretch_every_duration():
+    brick = Brick(tacho_access_s=(0.0004, 0.0004), sensor_access_s=(0.0001, 0.0001), compute_s=(0.0008, 0.0008),
+                  cpu_steal=0.2)
+    times = AccessTimes(brick, np.random.default_rng(0))
+    assert times.access(0) == pytest.approx(0.0005) and times.compute() == pytest.approx(0.001)
+
+
 def test_late_wake_ups_and_stalls():
     times = AccessTimes(Brick(late_wake_probability=1.0, late_wake_s=(0.001, 0.002), stall_rate_hz=2.0,
                               stall_s=(0.02, 0.03)), np.random.default_rng(3))

@@ -5,7 +5,7 @@ import pytest
 
 from hostsim.sim.scenario import Brick, load_scenario
 from hostsim.studies import margins
-from hostsim.studies.report import margins_section
+from hostsim.studies.report import brick_table, margins_section
 
 
 def test_each_margin_moves_only_its_own_effect():
@@ -50,3 +50,12 @@ def test_ablation_rows_switch_the_effects_as_named():
     assert order == ["none (all on)", "timing", "only backlash"]
     assert margins.costliest(res, "physical") == ["backlash"]
     assert "all but timing" in margins.ablation_table(res)
+
+
+def test_the_report_lists_the_realistic_bricks_values_with_their_sources():
+    brick = load_scenario(margins.BASE_SCENARIO).brick
+    table = brick_table({"brick": dataclasses.asdict(brick)})
+    rows = table.splitlines()[2:]
+    assert len(rows) == len(brick.sources) - 1              # every effect but the (off) timeout fault
+    assert "| `backlash_deg` | [3.0, 3.0, 3.0, 0.5] | ev3-hardware.md:" in table
+    assert all("ev3-hardware.md" in r or "assumption" in r or "estimate" in r for r in rows)
