@@ -42,9 +42,16 @@ CONNECT  = $(HOST) --remote-dir '$(REMOTE_DIR)' --ssh "$(SSH)"
 LOG      ?=
 GAINS    ?=
 REPLAY_ARGS ?=
+# make watch HOST=... [DURATION=s] [WATCH_PORT=5005] [RECORD=file.csv] [SNAPSHOT=file.png]
+WATCH_PORT ?= 5005
+RECORD   ?=
+SNAPSHOT ?=
+# make bench TELEMETRY_EVERY=20: the decimation of the telemetry bench (the firmware's default)
+TELEMETRY_EVERY ?= 20
 
 .DEFAULT_GOAL := help
-.PHONY: help venv test gains paper-check sim replay bench brick stage deploy run logs clean distclean
+.PHONY: help venv test gains paper-check sim replay bench brick stage deploy run logs watch sim-brick \
+        sim-brick-stop clean distclean
 
 help:
 	@echo "tipbot make targets (Python ones run in $(VENV), made by 'make venv'):"
@@ -62,6 +69,10 @@ help:
 	@echo "               REMOVE_CONFIG=1, DEPLOY_VARIANT=physical-ts0.010, FORCE=1, SERVICE=1)"
 	@echo "  run          run the controller on the brick over ssh (HOST=...; DURATION=s)"
 	@echo "  logs         fetch the brick's new run logs into logs/<host>/ (HOST=...)"
+	@echo "  watch        run on the brick with live telemetry plotted here (HOST=...; DURATION=s,"
+	@echo "               RECORD=file.csv, SNAPSHOT=file.png, WATCH_PORT=5005)"
+	@echo "  sim-brick    a brick without a brick: loopback sshd + simulated robot; prints HOST= and SSH="
+	@echo "  sim-brick-stop  stop it (or Ctrl-C where it runs)"
 	@echo "  clean        remove build products and caches; distclean also removes $(VENV)"
 
 venv: $(STAMP)
@@ -73,6 +84,10 @@ $(STAMP):
 	$(PYTHON) -m venv $(VENV)
 	$(VPY) -m pip install --disable-pip-version-check --no-input --quiet --prefer-binary -r $(REQ)
 	$(VPY) -m pip check
+	@# the host commands on PATH (tipbot-host VERB), from this checkout (pip builds it with a
+	@# setuptools and wheel of its own, from the same package index)
+	@$(VPY) -m pip install --disable-pip-version-check --no-input --quiet --no-deps -e . \
+	  || echo "make venv: tipbot-host not installed (pip install -e . failed; python -m hostsim works)"
 	@touch $@
 	@echo "make venv: $(VENV) ready ($$($(VPY) --version))"
 
@@ -100,7 +115,15 @@ replay: venv
 # numpy 1.12, see README). Without the brick it says how to make one.
 bench: venv
 	$(VPY) -m hostsim bench-sim
+	@echo "== the control tick as it runs supervised: heartbeat, plausibility checks, log chunks to a file"
 	$(VPY) tools/tick-cost --ticks $(TICKS) -- python3 -m tipbot_fw.bench
+	@echo "== the same tick bare (without those three), for what they cost"
+	$(VPY) tools/tick-cost --ticks $(TICKS) -- python3 -m tipbot_fw.bench --bare
+	@echo "== the supervised tick with telemetry (one datagram every $(TELEMETRY_EVERY) ticks)"
+	$(VPY) tools/tick-cost --ticks $(TICKS) -- python3 -m tipbot_fw.bench --telemetry-every $(TELEMETRY_EVERY)
+	@$(VPY) -m tipbot_fw.bench --ticks $(TICKS) --telemetry-every $(TELEMETRY_EVERY) | grep '^telemetry:'
+	@echo "== the supervisor: instructions per poll (it polls every 10 ms, outside the controller's ticks)"
+	$(VPY) tools/tick-cost --ticks $(TICKS) --ticks-flag=--bench-polls -- python3 -m tipbot_fw.supervisor
 
 brick:
 	tools/brick-setup
@@ -136,6 +159,21 @@ run:
 logs:
 	$(need_host)
 	$(DEPLOY) logs $(CONNECT) $(if $(LOGS_DIR),--dest $(LOGS_DIR))
+
+# Live plots of the run's telemetry: `hostsim watch` listens on WATCH_PORT and runs `make run`'s
+# command, whose firmware sends its telemetry to the address the ssh connection comes from.
+watch: venv
+	$(need_host)
+	$(VPY) -m hostsim watch --port $(WATCH_PORT) $(if $(RECORD),--record $(RECORD)) \
+	  $(if $(SNAPSHOT),--snapshot $(SNAPSHOT)) -- \
+	  $(DEPLOY) run $(CONNECT) --telemetry-port $(WATCH_PORT) $(if $(DURATION),--duration $(DURATION)) -- $(RUN_ARGS)
+
+# The loopback brick (tools/sim-brick): runs in the foreground until Ctrl-C or `make sim-brick-stop`.
+sim-brick: venv
+	$(VPY) tools/sim-brick start --python $(abspath $(VPY))
+
+sim-brick-stop:
+	$(PYTHON) tools/sim-brick stop
 
 clean:
 	rm -rf build dist *.egg-info .pytest_cache .cache

@@ -30,6 +30,8 @@ setup(
     package_data={"tipbot_fw": ["*.json"], "hostsim.model": ["data/*.json"]},
     python_requires=">=3.5",
     install_requires=["numpy>=1.12"],
+    # The host tools on PATH (pip install -e .): tipbot-host VERB is python -m hostsim VERB.
+    entry_points={"console_scripts": ["tipbot-host = hostsim.__main__:main"]},
     extras_require={
         "robot": ["python-ev3dev2==2.1.0"],
         "host": ["numpy", "scipy", "sympy", "control", "matplotlib", "tqdm"],

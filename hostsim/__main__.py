@@ -23,11 +23,14 @@ COMMANDS = {
     "bench-sim": ("hostsim.studies.sim_bench", "simulation speed: real-time factor, Monte Carlo throughput"),
     "replay": ("hostsim.logs.replay", "replay a robot log on the host (make replay)"),
     "identify": ("hostsim.logs.identify", "identify motor parameters from identify logs"),
+    "watch": ("hostsim.logs.watch", "live telemetry from the robot: scrolling plots, recording (make watch)"),
+    "export": ("hostsim.logs.export", "a robot log as CSV for spreadsheets and notebooks"),
 }
 
 
 def usage():
-    lines = ["usage: python -m hostsim VERB [ARGS...]   (python -m hostsim VERB --help for its options)",
+    lines = ["usage: python -m hostsim VERB [ARGS...]   (python -m hostsim VERB --help for its options;",
+             "       tipbot-host VERB ... is the same, once pip install -e . (make venv) has put it on PATH)",
              "", "verbs:"]
     lines += ["  %-12s %s" % (name, text) for name, (_, text) in COMMANDS.items()]
     return "\n".join(lines)

@@ -145,3 +145,23 @@ class Lockstep(object):
         self.dev.enc = (int(round(phi_r * k)), int(round(phi_l * k)),
                         int(round(x[3] * k)), int(round(x[4] * k)))
         self.dev.gyro = (int(round(math.degrees(x[2]))), int(round(math.degrees(x[7]))) + self.bias)
+
+
+class TickCounter(object):
+    """on_sleep hook of a VirtualClock: counts loop ticks (sleeps after the first write) and
+    runs `action(n)`."""
+
+    def __init__(self, dev, action):
+        self.dev, self.action, self.n = dev, action, 0
+
+    def __call__(self, t_from, t_to):
+        if self.dev.write_calls:
+            self.n += 1
+            self.action(self.n)
+
+
+def moving_readings(polarity=1):
+    """A MemoryDevices source whose readings move every tick (so every logged value differs from
+    tick to tick), by steps the hardware can make (tipbot_fw.plausibility: a few counts a tick)."""
+    ticks = iter(range(10 ** 6))
+    return lambda: (lambda n: ((polarity * 3 * n, -n, n % 12, n % 7), (n // 50, (n % 5) - 2)))(next(ticks))

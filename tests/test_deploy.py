@@ -2,16 +2,16 @@
 
 The "brick" is this machine: a throwaway sshd on 127.0.0.1 (own host and user keys, config and
 authorized_keys in a temporary directory) whose sessions see a `python3` that is this test's
-interpreter. The firmware runs there through the deployed launcher, in its own process, against
+interpreter: tools/sim-brick's Brick, the one `make sim-brick` starts. The firmware runs there through the deployed launcher, in its own process, against
 a fake EV3 tree that `python -m hostsim fake-robot` drives in real time from the simulated robot.
 tools/deploy's planning is also tested without ssh.
 """
+import csv
 import importlib.machinery
 import importlib.util
 import glob
 import hashlib
 import os
-import pwd
 import re
 import shutil
 import signal
@@ -19,7 +19,6 @@ import socket
 import stat
 import subprocess
 import sys
-import threading
 import time
 
 import pytest
@@ -28,15 +27,16 @@ from conftest import PAPER_GAINS, PHYSICAL_GAINS, REPO
 SHEBANG = b"#!/usr/bin/env python3\n"
 
 
-def load_deploy_tool():
-    loader = importlib.machinery.SourceFileLoader("tipbot_deploy_tool", os.path.join(REPO, "tools", "deploy"))
+def load_tool(name, module):
+    loader = importlib.machinery.SourceFileLoader(module, os.path.join(REPO, "tools", name))
     spec = importlib.util.spec_from_loader(loader.name, loader)
     mod = importlib.util.module_from_spec(spec)
     loader.exec_module(mod)
     return mod
 
 
-deploy_tool = load_deploy_tool()
+deploy_tool = load_tool("deploy", "tipbot_deploy_tool")
+sim_brick = load_tool("sim-brick", "tipbot_sim_brick_tool")     # the loopback brick of `make sim-brick`
 
 
 # ------------------------------------------------------------------ staging and planning (no ssh)
@@ -104,7 +104,7 @@ def test_plan_sends_only_changes_chmods_modes_and_removes_what_was_deployed_befo
 
 def test_make_run_explains_each_exit_status_in_full():
     meanings = deploy_tool.exit_meanings()
-    assert sorted(meanings) == [0, 1, 2, 3, 4, 5, 6, 7, 130, 143]
+    assert sorted(meanings) == [0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 130, 143]
     assert meanings[4].endswith("or (identify) the owner did not confirm that the motor is free to turn")
     assert meanings[3].endswith("(run) a log of the header only, naming them")
 
@@ -118,9 +118,9 @@ def test_remote_dir_is_under_home_unless_absolute():
 # ------------------------------------------------------------------ the loopback brick
 def _find_or_install_sshd():
     """Path of sshd, installing openssh-server (apt-get, as root) if it is missing; else None."""
-    for p in (shutil.which("sshd"), "/usr/sbin/sshd"):
-        if p and os.access(p, os.X_OK) and shutil.which("ssh") and shutil.which("ssh-keygen"):
-            return p
+    found = sim_brick.find_sshd()
+    if found:
+        return found
     if os.geteuid() == 0 and shutil.which("apt-get"):
         env = dict(os.environ, DEBIAN_FRONTEND="noninteractive")
         try:
@@ -131,126 +131,22 @@ def _find_or_install_sshd():
                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         except (subprocess.SubprocessError, OSError):
             return None
-        if os.access("/usr/sbin/sshd", os.X_OK):
-            return "/usr/sbin/sshd"
+        return sim_brick.find_sshd()
     return None
 
 
-def _free_port():
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def _python_wrapper(path, python, extra=""):
-    with open(path, "w") as f:
-        f.write("#!/bin/sh\n%sexec %s \"$@\"\n" % (extra, python))
-    os.chmod(path, 0o755)
-
-
-class Brick(object):
-    """A throwaway sshd on 127.0.0.1 and the make arguments that reach it."""
+class Brick(sim_brick.Brick):
+    """The loopback brick as `testbrick`, with `make TARGET` run against it."""
 
     def __init__(self, root, sshd):
-        self.root = root
-        self.bin = os.path.join(root, "bin")           # first on the sessions' PATH
-        self.install_dir = os.path.join(root, "home", "tipbot")
-        self.user = pwd.getpwuid(os.getuid()).pw_name
-        os.makedirs(self.bin)
-        for name in ("host_key", "user_key"):
-            subprocess.run(["ssh-keygen", "-q", "-t", "ed25519", "-N", "", "-C", "tipbot-test",
-                            "-f", os.path.join(root, name)], check=True)
-        shutil.copy(os.path.join(root, "user_key.pub"), os.path.join(root, "authorized_keys"))
-        self.use_python(sys.executable)
-        # Every session runs its command with /bin/sh (as on the brick, where ssh commands meet
-        # dash) with our bin/ first on PATH, whatever the account's shell start-up files do.
-        force = os.path.join(root, "session")
-        with open(force, "w") as f:
-            f.write('#!/bin/sh\nPATH=%s:$PATH\nexport PATH\nexec /bin/sh -c "$SSH_ORIGINAL_COMMAND"\n' % self.bin)
-        os.chmod(force, 0o755)
-        if os.geteuid() == 0:
-            os.makedirs("/run/sshd", exist_ok=True)     # sshd's privilege separation directory
-        self.proc = None
-        for _ in range(3):
-            self.port = _free_port()
-            if self._start(sshd, force):
-                break
-        else:
-            raise RuntimeError("could not start sshd: " + self.sshd_log())
-        self.ssh_config = os.path.join(root, "ssh_config")
-        with open(os.path.join(root, "host_key.pub")) as f:
-            host_key = f.read().split()
-        with open(os.path.join(root, "known_hosts"), "w") as f:
-            f.write("[127.0.0.1]:%d %s %s\n" % (self.port, host_key[0], host_key[1]))
-        with open(self.ssh_config, "w") as f:
-            f.write("Host testbrick\n  HostName 127.0.0.1\n  Port %d\n  User %s\n"
-                    "  IdentityFile %s\n  IdentitiesOnly yes\n  UserKnownHostsFile %s\n"
-                    "  StrictHostKeyChecking yes\n  BatchMode yes\n  LogLevel ERROR\n"
-                    "  ConnectTimeout 10\n"
-                    % (self.port, self.user, os.path.join(root, "user_key"), os.path.join(root, "known_hosts")))
-        deadline = time.monotonic() + 15
-        while True:
-            p = subprocess.run(["ssh", "-F", self.ssh_config, "testbrick", "true"],
-                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT, timeout=20)
-            if p.returncode == 0:
-                break
-            if time.monotonic() > deadline:
-                self.close()
-                raise RuntimeError("ssh to the test sshd fails: %s\n%s" % (p.stdout, self.sshd_log()))
-            time.sleep(0.2)
-
-    def _start(self, sshd, force):
-        cfg = os.path.join(self.root, "sshd_config")
-        with open(cfg, "w") as f:
-            f.write("\n".join([
-                "Port %d" % self.port, "ListenAddress 127.0.0.1",
-                "HostKey %s" % os.path.join(self.root, "host_key"),
-                "PidFile %s" % os.path.join(self.root, "sshd.pid"),
-                "AuthorizedKeysFile %s" % os.path.join(self.root, "authorized_keys"),
-                "StrictModes no", "UsePAM no", "PermitRootLogin yes", "AllowUsers %s" % self.user,
-                "PubkeyAuthentication yes", "PasswordAuthentication no",
-                "KbdInteractiveAuthentication no", "ForceCommand %s" % force, "LogLevel VERBOSE", ""]))
-        self.log_path = os.path.join(self.root, "sshd.log")
-        self.log = open(self.log_path, "ab")
-        self.proc = subprocess.Popen([sshd, "-D", "-e", "-f", cfg], stdout=self.log, stderr=self.log,
-                                     stdin=subprocess.DEVNULL)
-        deadline = time.monotonic() + 10
-        while time.monotonic() < deadline:
-            if self.proc.poll() is not None:
-                return False
-            try:
-                socket.create_connection(("127.0.0.1", self.port), timeout=0.5).close()
-                return True
-            except OSError:
-                time.sleep(0.05)
-        self.proc.kill()
-        return False
-
-    def sshd_log(self):
-        with open(self.log_path, "rb") as f:
-            return f.read().decode("utf-8", "replace")[-3000:]
-
-    def use_python(self, python, extra=""):
-        """The brick's python3 from now on."""
-        _python_wrapper(os.path.join(self.bin, "python3"), python, extra)
+        sim_brick.Brick.__init__(self, root, sshd, python=sys.executable, alias="testbrick")
 
     def make(self, target, *args, timeout=120, repo=REPO):
         """Run `make TARGET HOST=testbrick ...` in the repo; -> CompletedProcess (text, merged output)."""
-        cmd = ["make", "--no-print-directory", "-C", repo, target, "HOST=testbrick",
-               "SSH=ssh -F %s" % self.ssh_config, "REMOTE_DIR=%s" % self.install_dir,
-               "STAGE=%s" % os.path.join(self.root, "stage")] + list(args)
+        cmd = ["make", "--no-print-directory", "-C", repo, target] + self.make_settings() + [
+            "REMOTE_DIR=%s" % self.install_dir, "STAGE=%s" % os.path.join(self.root, "stage")] + list(args)
         return subprocess.run(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
                               universal_newlines=True, timeout=timeout)
-
-    def close(self):
-        if self.proc is not None and self.proc.poll() is None:
-            self.proc.terminate()
-            try:
-                self.proc.wait(10)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
-        self.log.close()
 
 
 @pytest.fixture(scope="module")
@@ -380,47 +276,13 @@ def test_deploy_installs_the_systemd_unit_on_request(brick):
 
 
 # ------------------------------------------------------------------ run, logs, replay
-class FakeRobot(object):
-    """python -m hostsim fake-robot in its own process; ready once the tree exists."""
-
-    def __init__(self, root, scenario, config, duration_s=60):
-        self.proc = subprocess.Popen(
-            [sys.executable, "-m", "hostsim", "fake-robot", "--root", root, "--scenario", scenario,
-             "--write-config", config, "--duration", str(duration_s)],
-            cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, universal_newlines=True)
-        self.lines = []
-        self.ready = threading.Event()
-        self.reader = threading.Thread(target=self._read, daemon=True)
-        self.reader.start()
-        if not self.ready.wait(60):
-            self.stop()
-            raise RuntimeError("fake robot not ready:\n" + "".join(self.lines))
-
-    def _read(self):
-        for line in self.proc.stdout:
-            self.lines.append(line)
-            if line.startswith("fake_robot: ready"):
-                self.ready.set()
-
-    def stop(self):
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(15)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
-        self.reader.join(5)
-        return "".join(self.lines)
-
-
 def test_run_on_the_brick_fetch_the_log_and_replay_it_exactly(brick, tmp_path):
     scenario = tmp_path / "loopback.json"
     # small gyro noise: the readings, estimates and inputs are not all zero
     scenario.write_text('{"name": "loopback", "sensors": {"gyro_noise_dps": 0.3}, "seed": 3}\n')
     config = str(tmp_path / "robot-config.json")
     sysfs = str(tmp_path / "sysfs")
-    robot = FakeRobot(sysfs, str(scenario), config)
+    robot = sim_brick.FakeRobot(sysfs, str(scenario), config, duration_s=60)
     try:
         p = brick.make("deploy", "CONFIG=%s" % config)
         assert p.returncode == 0, p.stdout
@@ -505,3 +367,90 @@ def test_the_real_time_fake_robot_holds_the_robot_until_the_firmware_drives_a_mo
         devs.close()
     finally:
         robot.close()
+
+
+def _free_udp_port():
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_make_watch_records_the_telemetry_of_a_run_on_the_brick(brick, tmp_path):
+    config, sysfs = str(tmp_path / "robot-config.json"), str(tmp_path / "sysfs")
+    scenario = tmp_path / "loopback.json"
+    scenario.write_text('{"name": "loopback", "sensors": {"gyro_noise_dps": 0.3}, "seed": 5}\n')
+    robot = sim_brick.FakeRobot(sysfs, str(scenario), config, duration_s=60)
+    record, port = str(tmp_path / "watched.csv"), _free_udp_port()
+    try:
+        assert brick.make("deploy", "CONFIG=%s" % config).returncode == 0
+        p = brick.make("watch", "DURATION=2", "RUN_ARGS=--sysfs-root %s" % sysfs, "WATCH_PORT=%d" % port,
+                       "RECORD=%s" % record, timeout=120)
+    finally:
+        robot_out = robot.stop()
+    assert p.returncode == 0, p.stdout + robot_out
+    # the brick sends back to the address its ssh session comes from
+    assert "run: telemetry to 127.0.0.1:%d" % port in p.stdout and "run: firmware exit status 0" in p.stdout
+    assert "watch: receiving telemetry from 127.0.0.1" in p.stdout
+    # what the brick showed, as the fake robot saw it: hold, let go, balancing, done
+    shown = [l.split(": ", 1)[1].strip() for l in robot_out.splitlines() if l.startswith("fake_robot: lights")]
+    assert shown == ["lights: left amber, right amber", "lights: left amber, right green",
+                     "lights: left green, right green", "lights: left green, right off"], robot_out
+    dest = str(tmp_path / "logs")
+    assert brick.make("logs", "LOGS_DIR=%s" % dest).returncode == 0
+    from tipbot_fw import logfile
+    log = [f for f in glob.glob(os.path.join(dest, "tipbot-*.log"))]
+    _, rows = logfile.read_log(sorted(log)[-1])
+    with open(record) as f:
+        got = list(csv.DictReader(f))
+    assert len(got) == 20 and [int(r["tick"]) for r in got] == list(range(0, 400, 20))   # the default: every 20
+    for r in got:
+        row = rows[int(r["tick"])]
+        assert [float(r[n]) for n in ("time_s", "y_th1_rad", "y_d_r_m", "u_l_V", "w_r_V", "battery_v")] == \
+            [row[logfile.col(c)] for c in ("time_s", "y_th1", "y_d_r", "u_l", "w_r", "battery_v")]
+
+
+def _processes_mentioning(text):
+    found = []
+    for pid in os.listdir("/proc"):
+        try:
+            with open("/proc/%s/cmdline" % pid, "rb") as f:
+                if text.encode() in f.read():
+                    found.append(int(pid))
+        except (OSError, ValueError):
+            continue
+    return found
+
+
+@pytest.mark.parametrize("how", ["stop", "ctrl-c"])
+def test_make_sim_brick_prints_its_settings_and_stops_leaving_nothing_running(tmp_path, how):
+    if _find_or_install_sshd() is None:
+        pytest.skip("no sshd")
+    d = str(tmp_path / "sim")
+    tool = os.path.join(REPO, "tools", "sim-brick")
+    p = subprocess.Popen([sys.executable, tool, "start", "--dir", d], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                         universal_newlines=True, cwd=REPO)
+    out = []
+    try:
+        for line in p.stdout:
+            out.append(line)
+            if line.startswith("Ctrl-C here"):
+                break
+        text = "".join(out)
+        settings = re.search(r"^    HOST=(\S+) SSH='(ssh -F (\S+))'$", text, re.M)
+        assert settings and settings.group(1) == "simbrick", text
+        assert _processes_mentioning(d)          # sshd and the fake robot
+        s = subprocess.run(settings.group(2).split() + ["simbrick", 'echo "$HOME $TIPBOT_SYSFS_ROOT"; python3 -c "import numpy"'],
+                           stdout=subprocess.PIPE, stderr=subprocess.STDOUT, universal_newlines=True, timeout=30)
+        assert s.returncode == 0 and s.stdout.split() == [os.path.join(d, "home"), os.path.join(d, "sysfs")], s.stdout
+        if how == "stop":
+            q = subprocess.run([sys.executable, tool, "stop", "--dir", d], stdout=subprocess.PIPE, universal_newlines=True,
+                               timeout=60)
+            assert q.returncode == 0 and "sim-brick: stopped the loopback brick" in q.stdout
+        else:
+            p.send_signal(signal.SIGINT)
+        assert p.wait(60) == 0
+    finally:
+        if p.poll() is None:
+            p.kill()
+    assert "sim-brick: stopped (sshd and the fake robot)" in p.stdout.read()
+    assert _processes_mentioning(d) == [] and not os.path.exists(os.path.join(d, "sim-brick.pid"))

@@ -302,11 +302,11 @@ def write_params(tmp_path, mutate):
 
 @pytest.mark.parametrize("mutate, message", [
     (lambda p: p.pop("m2_kg"), "field parameters.m2_kg is missing"),
-    (lambda p: p["l1_m"].update(value="ten"), "field parameters.l1_m must be a number > 0, got 'ten'"),
-    (lambda p: p["m1_kg"].update(value=-0.663), "field parameters.m1_kg must be a number > 0, got -0.663"),
-    (lambda p: p["rw_m"].update(value=0), "field parameters.rw_m must be a number > 0, got 0"),
+    (lambda p: p["l1_m"].update(value="ten"), "field parameters.l1_m must be a number in [0.001, 0.5], got 'ten'"),
+    (lambda p: p["m1_kg"].update(value=-0.663), "field parameters.m1_kg must be a number in [0.001, 5.0], got -0.663"),
+    (lambda p: p["rw_m"].update(value=0), "field parameters.rw_m must be a number in [0.005, 0.1], got 0"),
     (lambda p: p["joint2_beta_nm_s"].update(value=-1e-4),
-     "field parameters.joint2_beta_nm_s must be a number >= 0, got -0.0001"),
+     "field parameters.joint2_beta_nm_s must be a number in [0.0, 0.1], got -0.0001"),
     (lambda p: p.update(colour={"value": 1}), "field parameters.colour is unknown"),
 ])
 def test_bad_parameter_files_are_named(tmp_path, mutate, message):

@@ -34,13 +34,17 @@ def make_install_dir(tmp_path, gains=True):
     shutil.copy2(os.path.join(EV3, "tipbot"), str(d / "tipbot"))
     shutil.copy2(os.path.join(EV3, "install.sh"), str(d / "install.sh"))
     shutil.copy2(os.path.join(EV3, "tipbot.service"), str(d / "tipbot.service"))
-    # a stand-in firmware that reports how it was started
+    # the real supervisor (the launcher becomes it) and a stand-in firmware that reports how it
+    # was started
+    for name in ("supervisor.py", "heartbeat.py", "config.py", "fields.py", "safety.py", "default_config.json"):
+        shutil.copy2(os.path.join(REPO, "tipbot_fw", name), str(d / "tipbot_fw" / name))
     (d / "tipbot_fw" / "__init__.py").write_text("")
     (d / "tipbot_fw" / "__main__.py").write_text(textwrap.dedent("""\
         import os, sys
         print("argv=" + repr(sys.argv[1:]))
         print("cwd=" + os.getcwd())
         print("main=" + os.path.dirname(os.path.abspath(__file__)))
+        print("supervised=%s" % ("TIPBOT_SUPERVISOR" in os.environ))
         sys.exit(3)
         """))
     if gains:
@@ -59,6 +63,7 @@ def test_launcher_runs_the_firmware_with_the_deployed_files(tmp_path):
     assert "argv=['run', '--gains', '%s', '--duration', '2']" % (d / "gains.json") in p.stdout
     assert "cwd=%s" % (d / "logs") in p.stdout
     assert "main=%s" % (d / "tipbot_fw") in p.stdout
+    assert "supervised=True" in p.stdout
 
     (d / "config.json").write_text("{}")
     p = subprocess.run([sys.executable, str(d / "tipbot")], env=env, stdout=subprocess.PIPE,

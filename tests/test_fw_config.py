@@ -44,7 +44,7 @@ def test_null_bias_time_constant_disables_tracking(tmp_path):
     ({'limits': 0.6}, 'field limits must be an object, got 0.6'),
     ({'polarity': {'right_wheel': 2}}, 'field polarity.right_wheel must be one of 1, -1, got 2'),
     ({'polarity': {'right_wheel': True}}, 'field polarity.right_wheel must be one of 1, -1, got True'),
-    ({'wheel_radius_m': 0}, r'field wheel_radius_m must be a number in \(0, 0.2\], got 0'),
+    ({'wheel_radius_m': 0}, r'field wheel_radius_m must be a number in \(0.005, 0.1\], got 0'),
     ({'wheel_radius_m': '0.034'}, "field wheel_radius_m must be a number in .*got '0.034'"),
     ({'limits': {'max_consecutive_overruns': 2.5}}, 'field limits.max_consecutive_overruns must be an integer'),
     ({'ports': {'gyro': 'outA'}}, "field ports.gyro must be one of 'in1', 'in2', 'in3', 'in4', got 'outA'"),
@@ -52,6 +52,9 @@ def test_null_bias_time_constant_disables_tracking(tmp_path):
     ({'drivers': {'gyro': ''}}, 'field drivers.gyro must be a non-empty string'),
     ({'stop_action': 'hold'}, "field stop_action must be one of 'coast', 'brake', got 'hold'"),
     ({'realtime_priority': 100}, 'field realtime_priority must be an integer in'),
+    # the warning within what a battery reads, and before the refusal to start
+    ({'limits': {'warn_battery_v': 20}}, r'field limits.warn_battery_v must be a number in \[5.0, 9.0\], got 20'),
+    ({'limits': {'warn_battery_v': 6.0}}, 'field limits.warn_battery_v is 6.0 V, below limits.min_battery_v = 6.5 V'),
 ])
 def test_invalid_fields_are_named_with_the_file(tmp_path, override, message):
     path = write(tmp_path, override)
@@ -61,7 +64,7 @@ def test_invalid_fields_are_named_with_the_file(tmp_path, override, message):
 
 def test_non_finite_number_is_refused(tmp_path):
     path = write(tmp_path, '{"filters": {"gyro_rate_cutoff_hz": NaN}}')
-    with pytest.raises(ConfigError, match=r'field filters.gyro_rate_cutoff_hz must be a number .*got nan'):
+    with pytest.raises(ConfigError, match=r'field filters.gyro_rate_cutoff_hz is NaN, not a finite number'):
         load_config(path)
 
 

@@ -1,10 +1,16 @@
 """tipbot_fw.logfile and tipbot_fw.replay: the log round-trips, damage is detected, runs replay."""
+import errno
+import json
+import os
+import struct
+import zlib
+
 import numpy as np
 import pytest
 
 import fw_support as S
 from tipbot_fw import logfile
-from tipbot_fw.logfile import LogFormatError, col, read_log, write_log
+from tipbot_fw.logfile import LogFormatError, LogWriteError, LogWriter, col, read_log, write_log
 from tipbot_fw.replay import replay
 from tipbot_fw.session import run_session
 
@@ -19,7 +25,7 @@ def test_round_trip(tmp_path):
     write_log(path, {'stop_reason': 'completed', 'nested': {'x': [1, 2.5]}}, rows)
     header, back = read_log(path)
     np.testing.assert_array_equal(back, rows)
-    assert header['nested'] == {'x': [1, 2.5]} and header['format_version'] == 1
+    assert header['nested'] == {'x': [1, 2.5]} and header['format_version'] == 2 and 'incomplete' not in header
     assert [c['name'] for c in header['columns']] == logfile.COLUMN_NAMES
     assert not (tmp_path / 'a.log.tmp').exists()
 
@@ -43,43 +49,121 @@ def rewrite(path, data):
         f.write(data)
 
 
-@pytest.mark.parametrize('cut', [1, 8, 100, 1000])
-def test_truncated_log(log_bytes, cut):
-    path, data = log_bytes
+def _rows_records(data):
+    """(start, end) of each ROWS record of a format-2 log."""
+    out, pos = [], len(logfile.MAGIC) + 4
+    while pos < len(data):
+        tag, n, _ = struct.unpack_from('<4sII', data, pos)
+        if tag == b'ROWS':
+            out.append((pos, pos + 16 + n))
+        pos += 16 + n
+    return out
+
+
+@pytest.fixture
+def chunked_log(tmp_path):
+    """A log whose 37 rows are in chunks of 10, as a run writes them."""
+    path = str(tmp_path / 'c.log')
+    rows = some_rows()
+    w = LogWriter(path, logfile.COLUMNS, reserve_rows=1000)
+    w.header({'k': 'v'})
+    for i in range(0, len(rows), 10):
+        w.rows(rows[i:i + 10])
+    assert w.close({'stop_reason': 'completed'}) is None
+    with open(path, 'rb') as f:
+        return path, f.read(), rows
+
+
+@pytest.mark.parametrize('cut', [1, 8, 100, 1000, 2000])
+def test_a_log_cut_short_returns_its_intact_rows_and_says_so(chunked_log, cut):
+    path, data, rows = chunked_log
     rewrite(path, data[:-cut])
-    with pytest.raises(LogFormatError, match='truncated: {} bytes, expected {}'.format(len(data) - cut, len(data))):
-        read_log(path)
+    header, back = read_log(path)
+    intact = sum(1 for a, b in _rows_records(data) if b <= len(data) - cut)
+    np.testing.assert_array_equal(back, rows[:10 * intact][:len(back)])
+    assert len(back) == min(37, 10 * intact)
+    assert 'stop_reason' not in header and header['k'] == 'v'
+    assert header['incomplete'].endswith('intact rows (a crash, a power cut or a full disk)')
 
 
-def test_truncated_inside_the_preamble(log_bytes):
-    path, data = log_bytes
-    for n in (0, 5, 20):
+def test_a_power_cut_in_reserved_space_reads_as_cut(chunked_log):
+    # the file keeps its reserved length; what was never written reads as zeros
+    path, data, rows = chunked_log
+    a, b = _rows_records(data)[2]
+    rewrite(path, data[:a] + bytes(100000))
+    header, back = read_log(path)
+    assert len(back) == 20 and 'reserved and never written' in header['incomplete']
+
+
+def test_truncated_inside_the_preamble_or_the_header(chunked_log):
+    path, data, _ = chunked_log
+    for n in (0, 5, 20, 200):
         rewrite(path, data[:n])
         with pytest.raises(LogFormatError, match='truncated'):
             read_log(path)
 
 
-@pytest.mark.parametrize('where', [12, 40, -300, -2])
-def test_corrupted_byte_fails_the_crc(log_bytes, where):
-    path, data = log_bytes
+@pytest.mark.parametrize('where', [30, 'rows'])
+def test_a_flipped_bit_before_the_end_is_refused(chunked_log, where):
+    path, data, _ = chunked_log
+    i = where if where != 'rows' else _rows_records(data)[1][0] + 40
     bad = bytearray(data)
-    bad[where] ^= 0x10
+    bad[i] ^= 0x10
     rewrite(path, bytes(bad))
-    with pytest.raises(LogFormatError, match='corrupted: CRC32|truncated|unexpected bytes'):
+    with pytest.raises(LogFormatError, match='corrupted: CRC32 of the (HEAD|ROWS) record at byte [0-9]+ is [0-9a-f]{8}, '
+                                             'expected [0-9a-f]{8}'):
         read_log(path)
 
 
-def test_corrupted_body_names_the_crc(log_bytes):
-    path, data = log_bytes
+def test_a_flipped_bit_in_a_record_header_is_refused(chunked_log):
+    path, data, _ = chunked_log
     bad = bytearray(data)
-    bad[-300] ^= 0x01
+    bad[_rows_records(data)[1][0] + 5] ^= 0x01        # a row count that would skip the next records
     rewrite(path, bytes(bad))
-    with pytest.raises(LogFormatError, match='corrupted: CRC32 is [0-9a-f]{8}, expected [0-9a-f]{8}'):
+    with pytest.raises(LogFormatError, match='corrupted: bad record header'):
         read_log(path)
 
 
-def test_not_a_log_and_trailing_garbage(log_bytes):
-    path, data = log_bytes
+def test_a_version_1_log_still_reads(tmp_path):
+    # version 1: counts, header, body and one CRC over them (docs/log-format.md)
+    header = {'columns': logfile.columns_header(), 'k': 1}
+    text = json.dumps(header).encode()
+    rows = some_rows(3)
+    counts = struct.pack('<IIIQ', 1, len(text), logfile.N_COLUMNS, 3)
+    body = rows.astype('<f8').tobytes()
+    crc = zlib.crc32(counts + text + body) & 0xffffffff
+    path = str(tmp_path / 'v1.log')
+    rewrite(path, logfile.MAGIC + counts + text + body + struct.pack('<I', crc))
+    h, back = read_log(path)
+    assert h['k'] == 1 and np.array_equal(back, rows)
+
+
+def test_a_full_disk_keeps_what_was_written(tmp_path, monkeypatch):
+    path = str(tmp_path / 'full.log')
+    w = LogWriter(path, logfile.COLUMNS)
+    w.header({})
+    rows = some_rows(30)
+    w.rows(rows[:10])
+    real = os.pwrite
+
+    def full(fd, data, pos):
+        raise OSError(errno.ENOSPC, 'No space left on device')
+    monkeypatch.setattr(os, 'pwrite', full)
+    assert w.rows(rows[10:20]) is False
+    monkeypatch.setattr(os, 'pwrite', real)
+    problem = w.close({'stop_reason': 'completed'})
+    assert problem == 'writing the log failed after 10 rows: No space left on device'
+    header, back = read_log(path)
+    assert np.array_equal(back, rows[:10]) and 'no trailer' in header['incomplete']
+
+
+def test_no_room_for_the_log_is_found_before_anything_runs(tmp_path):
+    with pytest.raises(LogWriteError, match='cannot write the log .*/nonexistent/x.log'):
+        LogWriter(str(tmp_path / 'nonexistent' / 'x.log'), logfile.COLUMNS)
+
+
+def test_not_a_log_and_trailing_garbage(chunked_log):
+    path, data, _ = chunked_log
     rewrite(path, b'{"json": true}')
     with pytest.raises(LogFormatError, match='not a tipbot log'):
         read_log(path)
@@ -136,10 +220,27 @@ def test_replay_reproduces_the_run(tmp_path):
     assert np.abs(rows[:, col('xt_th1')]).max() > 0.01
 
 
-def test_replay_from_a_wrapped_ring(tmp_path):
+def test_a_run_beyond_log_max_rows_keeps_its_first_rows(tmp_path):
     gains, (header, rows) = simulated_run(tmp_path, log_max_rows=150)
-    assert header['first_tick'] == 250 and len(rows) == 150
+    assert header['first_tick'] == 0 and len(rows) == 150 and header['rows_not_recorded'] == 250
     np.testing.assert_array_equal(replay(header, rows, gains), rows)
+
+
+def test_rows_reach_the_file_while_the_robot_runs(tmp_path):
+    # a copy of the file taken mid-run reads, with the rows of every chunk written so far
+    sim = S.Lockstep()
+    path = str(tmp_path / 'run.log')
+    seen = []
+
+    def peek(s):
+        if s.steps in (120, 260):
+            seen.append(read_log(path))
+    sim.on_step = peek
+    run_session(sim.dev, S.load(), S.fw_config(), sim.clock, log_path=path, duration_s=2.0, say=lambda m: None)
+    (h1, r1), (h2, r2) = seen
+    assert 100 <= len(r1) <= 120 and 250 <= len(r2) <= 260 and 'reserved and never written' in h1['incomplete']
+    assert h1['calibration'] and h1['encoder_offsets'] == [0, 0, 0, 0]
+    np.testing.assert_array_equal(r2, read_log(path)[1][:len(r2)])
 
 
 def test_replay_detects_a_changed_raw_reading_and_other_gains(tmp_path):

@@ -68,6 +68,48 @@ def test_each_tick_reads_once_writes_once_and_reads_the_battery_after_writing():
     assert sum(w for _, w in per_tick) > 100                   # duties did change
 
 
+def test_work_between_ticks_waits_for_slack_but_the_log_and_the_battery_not_for_ever(tmp_path):
+    # ticks 60..219 leave 0.5 ms before the next release (less than loop.SLACK_S), the others 5 ms;
+    # k below: the ticks done when the work runs
+    clock = VirtualClock()
+    n = [0]     # ticks started
+
+    def read():
+        n[0] += 1
+        if 60 <= n[0] < 220:
+            clock.advance(0.9 * TS)
+        return (0, 0, 0, 0), (0, 0)
+
+    dev = MemoryDevices(source=read)
+    seen = {'side': [], 'battery': [], 'flush': []}
+    battery = dev.read_battery_v
+    dev.read_battery_v = lambda: seen['battery'].append(n[0]) or battery()
+    core = Core(S.load(), S.fw_config(), 0.0)
+    writer = logfile.open_run_log(str(tmp_path / 'run.log'), 300)
+    writer.header({'config': S.fw_config()})
+    log = logfile.LogBuffer(200, writer, chunk_rows=50)     # the ring: 4 chunks, one forced after 150 rows
+    flush = log.flush
+    log.flush = lambda k=None: seen['flush'].append(k) or flush(k)
+
+    def side(k):
+        seen['side'].append(k)
+        return k + 10
+
+    loop = ControlLoop(dev, core, clock, log, TS, 8.0, battery_period_s=0.1, duration_s=1.5, side=side)
+    stats = loop.run()
+    assert stats.ticks == 300 and stats.overruns == 0
+    # the side task: on time with slack, never forced without (the first tick with slack again)
+    assert seen['side'] == list(range(1, 61, 10)) + list(range(220, 300, 10))
+    # the battery: on its grid with slack, else a whole period (20 ticks) late
+    assert seen['battery'] == [20, 40] + [80, 120, 160, 200] + list(range(220, 300, 20))
+    # the log's chunks: on time with slack; without, before the ring overwrites what is not written
+    assert seen['flush'] == [50, 200, 250]
+    flush()
+    writer.close({})
+    _, rows = logfile.read_log(str(tmp_path / 'run.log'))
+    assert len(rows) == 300      # nothing overwritten before it was written
+
+
 def test_consecutive_overruns_stop_the_loop_and_are_flagged():
     def on_sleep(t_from, t_to):
         if clock.sleeps > 20:

@@ -33,23 +33,14 @@ def assert_stopped_and_logged(dev, log_path, reason, code, header):
     return h, rows
 
 
-class TickCounter(object):
-    """on_sleep hook: counts loop ticks (sleeps after the first write) and runs `action(n)`."""
-
-    def __init__(self, dev, action):
-        self.dev, self.action, self.n = dev, action, 0
-
-    def __call__(self, t_from, t_to):
-        if self.dev.write_calls:
-            self.n += 1
-            self.action(self.n)
+TickCounter = S.TickCounter
 
 
 def test_completed_run(tmp_path):
     dev = MemoryDevices()
     code, header, path, msgs = session(tmp_path, dev, duration_s=0.5)
     h, rows = assert_stopped_and_logged(dev, path, 'completed', 0, header)
-    assert h['ticks'] == 100 and msgs[-1] == 'stopped: completed (exit 0, 100 ticks)'
+    assert h['ticks'] == 100 and msgs[-1] == 'stopped: completed (exit 0, 100 ticks); log {}'.format(path)
     assert dev.closed is False          # closing the devices is the caller's (cli's) job
 
 
@@ -271,7 +262,8 @@ def test_the_owner_is_told_to_hold_then_to_let_go_right_before_the_first_tick(tm
                 cues=OwnerCues(streams=[stream]))
     settle, n = sample_counts(S.fw_config()['gyro_calibration'], S.load().ts_s)
     assert stream.lines == [('tipbot: HOLD the robot still and upright: calibrating the gyro (0.2 s)', 0),
-                            ('tipbot: LET GO NOW: balancing', settle + n)]
+                            ('tipbot: LET GO NOW: balancing', settle + n),
+                            ('tipbot: DONE: ran its duration (exit 0)', settle + n + 20)]
     rows = read_log(path)[1]
     assert len(rows) == 20 and not rows[:, col('duty_r'):col('duty_3') + 1].any()   # no wheel ever drove
 
@@ -282,7 +274,8 @@ def test_no_let_go_when_the_calibration_refuses(tmp_path):
     stream = ReadCountingStream(dev)
     code, _ = run_session(dev, S.load(), S.fw_config(), VirtualClock(), say=lambda m: None,
                           cues=OwnerCues(streams=[stream]))
-    assert code == 4 and [text.split(':')[1].split()[0] for text, _ in stream.lines] == ['HOLD']
+    assert code == 4 and [text for text, _ in stream.lines][1:] == ['tipbot: NOT STARTED: moved while calibrating (exit 4)']
+    assert stream.lines[0][0].startswith('tipbot: HOLD')
 
 
 def test_cues_go_to_stdout_and_stderr_once_each_or_once_for_one_terminal(tmp_path, monkeypatch):

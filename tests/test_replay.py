@@ -38,9 +38,10 @@ def run_main(capsys, *argv):
     return code, out, err
 
 
-def write_raw(path, header, rows, version=logfile.FORMAT_VERSION, columns=None):
-    """A log file in the documented layout (docs/log-format.md), built without logfile.write_log:
-    magic, <IIIQ (version, header length, columns, rows), header JSON, float64 rows, CRC32."""
+def write_raw(path, header, rows, version=1, columns=None):
+    """A log file in format version 1 (docs/log-format.md: still read), built without
+    logfile.write_log: magic, <IIIQ (version, header length, columns, rows), header JSON, float64
+    rows, CRC32."""
     header = dict(header)
     if columns is not None:
         header["columns"] = columns
@@ -72,10 +73,10 @@ def test_a_simulated_log_replays_exactly_with_plots(sim_log, tmp_path, capsys):
     assert {"estimates x~", "inputs u", "signal chain y", "duties"} <= set(labels)
 
 
-def test_a_ring_buffer_log_replays_exactly_from_its_first_kept_row(tmp_path):
-    path = simulate(tmp_path / "ring.log", sysfs=False, config_overrides={"log_max_rows": 120})
+def test_a_log_beyond_log_max_rows_keeps_its_first_rows_and_replays_exactly(tmp_path):
+    path = simulate(tmp_path / "long.log", sysfs=False, config_overrides={"log_max_rows": 120})
     header, rows = logfile.read_log(path)
-    assert header["first_tick"] > 0 and len(rows) == 120
+    assert header["first_tick"] == 0 and len(rows) == 120 and header["rows_not_recorded"] == header["ticks"] - 120
     r = replay.replay_log(path)
     assert r.exact, r.diffs
 
@@ -151,14 +152,21 @@ def _bytes(path):
         return f.read()
 
 
-@pytest.mark.parametrize("keep", ["nothing", "part of the preamble", "part of the header",
-                                  "part of the rows", "all but the checksum"])
-def test_a_truncated_log_is_refused(sim_log, tmp_path, capsys, keep):
+def records(data):
+    """[(tag, start, end)] of the records of a format-2 log (logcontainer)."""
+    out, pos = [], len(logfile.MAGIC) + 4
+    while pos < len(data):
+        tag, n, _ = struct.unpack_from("<4sII", data, pos)
+        out.append((tag, pos, pos + 12 + n + 4))
+        pos += 12 + n + 4
+    return out
+
+
+@pytest.mark.parametrize("keep", ["nothing", "part of the preamble", "part of the header"])
+def test_a_log_cut_before_its_header_is_refused(sim_log, tmp_path, capsys, keep):
     data = _bytes(sim_log)
-    header_len = struct.unpack_from("<I", data, len(logfile.MAGIC) + 4)[0]
-    pre = len(logfile.MAGIC) + 20
-    n = {"nothing": 0, "part of the preamble": 12, "part of the header": pre + header_len // 2,
-         "part of the rows": (pre + header_len + len(data)) // 2, "all but the checksum": len(data) - 4}[keep]
+    head = records(data)[0]
+    n = {"nothing": 0, "part of the preamble": 10, "part of the header": (head[1] + head[2]) // 2}[keep]
     path = tmp_path / "cut.log"
     path.write_bytes(data[:n])
     code, out, err = run_main(capsys, path, "--no-plots")
@@ -166,18 +174,39 @@ def test_a_truncated_log_is_refused(sim_log, tmp_path, capsys, keep):
     assert err.startswith("replay: error: %s: truncated" % path), err
 
 
-@pytest.mark.parametrize("where", ["header", "rows"])
+@pytest.mark.parametrize("keep", ["part of the rows", "all but the end record", "zeros instead of the rows"])
+def test_a_log_cut_short_replays_its_intact_rows_and_says_so(sim_log, tmp_path, capsys, keep):
+    data = _bytes(sim_log)
+    recs = records(data)
+    rows_recs = [r for r in recs if r[0] == b"ROWS"]
+    third = rows_recs[len(rows_recs) // 3]
+    if keep == "part of the rows":
+        cut = data[:(third[1] + third[2]) // 2]
+    elif keep == "all but the end record":
+        cut = data[:recs[-1][1]] + data[recs[-1][1]:recs[-1][2] - 7]
+    else:       # the preallocated space a power cut leaves: zeros where records were to come
+        cut = data[:third[1]] + bytes(len(data) - third[1])
+    path = tmp_path / "cut.log"
+    path.write_bytes(cut)
+    header, rows = logfile.read_log(str(path))
+    intact = sum(1 for r in rows_recs if r[2] <= len(cut) and (keep != "zeros instead of the rows" or r[2] <= third[1]))
+    assert header["incomplete"] and len(rows) == sum(
+        struct.unpack_from("<QI", data, r[1] + 12)[1] for r in rows_recs[:intact])
+    code, out, err = run_main(capsys, path, "--no-plots")
+    assert code == 0, err
+    assert "replays exactly" in out and "the log is incomplete: " in out
+
+
+@pytest.mark.parametrize("where", ["HEAD", "ROWS"])
 def test_a_corrupted_log_is_refused(sim_log, tmp_path, capsys, where):
     data = bytearray(_bytes(sim_log))
-    header_len = struct.unpack_from("<I", data, len(logfile.MAGIC) + 4)[0]
-    pre = len(logfile.MAGIC) + 20
-    i = pre + 10 if where == "header" else pre + header_len + 8 * 50 + 3
-    data[i] ^= 0x10
+    rec = [r for r in records(bytes(data)) if r[0] == where.encode()][0]
+    data[rec[1] + 12 + 30] ^= 0x10
     path = tmp_path / "bad.log"
     path.write_bytes(bytes(data))
     code, out, err = run_main(capsys, path, "--no-plots")
     assert code == 2
-    assert "corrupted: CRC32" in err, err
+    assert "corrupted: CRC32 of the %s record" % where in err, err
 
 
 def test_a_file_that_is_not_a_log_is_refused(tmp_path, capsys):
@@ -191,7 +220,7 @@ def test_a_file_that_is_not_a_log_is_refused(tmp_path, capsys):
 
 def test_a_log_of_another_format_version_is_refused(sim_log, tmp_path, capsys):
     header, rows = logfile.read_log(sim_log)
-    path = write_raw(tmp_path / "v2.log", header, rows, version=logfile.FORMAT_VERSION + 1)
+    path = write_raw(tmp_path / "v3.log", header, rows, version=logfile.FORMAT_VERSION + 1)
     code, out, err = run_main(capsys, path, "--no-plots")
     assert code == 2
     assert "log format version %d is not supported" % (logfile.FORMAT_VERSION + 1) in err

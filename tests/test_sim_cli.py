@@ -85,3 +85,17 @@ def test_sim_writes_the_report(tmp_path, capsys):
             assert os.path.exists(out / line.split("](")[1].rstrip(")"))
     text = capsys.readouterr().out
     assert "linear/optimal" in text and "report.md" in text
+
+
+def test_pip_install_puts_the_verbs_on_path_as_tipbot_host(capsys):
+    # setup.py's console script (make venv: pip install -e .) is the same command line
+    import ast
+    import importlib
+    with open(os.path.join(REPO, "setup.py")) as f:
+        tree = ast.parse(f.read())
+    call = next(n for n in ast.walk(tree) if isinstance(n, ast.Call) and getattr(n.func, "id", "") == "setup")
+    entry = ast.literal_eval(next(k.value for k in call.keywords if k.arg == "entry_points"))
+    assert entry == {"console_scripts": ["tipbot-host = hostsim.__main__:main"]}
+    module, func = entry["console_scripts"][0].split(" = ")[1].split(":")
+    assert getattr(importlib.import_module(module), func)(["--help"]) == 0
+    assert "watch" in capsys.readouterr().out

@@ -1,5 +1,20 @@
 import sys
 
-from tipbot_fw.cli import main
+from tipbot_fw.safety import SignalGuard, Terminated
 
-sys.exit(main())
+
+def _main():
+    # The signal handlers come first, before the imports that take seconds on the brick (numpy),
+    # and long before any device is touched: a signal at any moment of the start ends the
+    # process with one line and, once devices are open, with the motors stopped.
+    guard = SignalGuard().install()
+    try:
+        from tipbot_fw.cli import main
+    except (KeyboardInterrupt, Terminated) as e:
+        sys.stderr.write('tipbot: {} while starting: nothing was started\n'.format(
+            'interrupted' if isinstance(e, KeyboardInterrupt) else e))
+        return 130 if isinstance(e, KeyboardInterrupt) else e.exit_code
+    return main(guard=guard)
+
+
+sys.exit(_main())

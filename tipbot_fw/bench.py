@@ -1,8 +1,15 @@
 """Cost of the real tick code.
 
-`python3 -m tipbot_fw.bench --ticks N [--gains FILE]` runs the control loop (tipbot_fw.loop,
-the same code as on the robot) for one start tick and N further ticks against MemoryDevices and a
-virtual clock. It imports only tipbot_fw, numpy and the standard library (no ev3dev2), and does
+`python3 -m tipbot_fw.bench --ticks N [--gains FILE] [--bare] [--telemetry-every M]` runs the
+control loop (tipbot_fw.loop, the same code as on the robot) for one start tick and N further
+ticks against MemoryDevices and a virtual clock, as a supervised run does: the heartbeat store
+in a shared page, the readings' plausibility checks, the log's rows written to a file in chunks
+(tipbot_fw.logcontainer; the file is removed at the end), and the side task a run has in its
+slack: the owner's cues (tipbot_fw.cues.LoopCues, without a brick: its checks, not the lights'
+sysfs writes). ``--bare`` leaves the heartbeat page, the encoders' bound from the configuration
+and the file out, to measure what they cost. With --telemetry-every, a telemetry datagram every M ticks goes to a UDP
+socket of its own on 127.0.0.1 (the send's system call is the kernel's time, not counted). It
+imports only tipbot_fw, numpy and the standard library (no ev3dev2), and does
 the same start-up work for every N, so the instruction count of N ticks minus that of 0 ticks,
 divided by N, is the cost of one tick including its log row. The fake devices and the clock
 are C-level callables (bench_devices, FrozenClock), so what is counted is the firmware's own
@@ -16,19 +23,24 @@ import collections
 import itertools
 import math
 import os
+import socket
 import sys
+import tempfile
 import time
 
 import numpy as np
 
-from tipbot_fw import logfile
+from tipbot_fw import heartbeat, logfile, slack
 from tipbot_fw.clock import MonotonicClock
-from tipbot_fw.config import defaults
+from tipbot_fw.config import defaults, motor_polarity
 from tipbot_fw.core import Core
+from tipbot_fw.cues import OwnerCues
 from tipbot_fw.devices import MemoryDevices
 from tipbot_fw.gains import ACTUATED_INPUTS, N_INPUTS, UNUSED_INPUT, gains_from_dict, load_gains
 from tipbot_fw.loop import ControlLoop
+from tipbot_fw.plausibility import EncoderBound
 from tipbot_fw.safety import SafetyStop
+from tipbot_fw.telemetry import SIZE, TelemetrySender
 
 
 def synthetic_gains_doc(A, B, K, ts_s, Q=None, R=None, u_max_v=7.6, detector_pole=0.2,
@@ -111,19 +123,50 @@ def bench_devices():
     return dev
 
 
-def run_memory(n_ticks, gains=None):
-    """The loop for 1 + n_ticks ticks on bench_devices() and a FrozenClock -> (LoopStats, log)."""
+def run_memory(n_ticks, gains=None, bare=False, sender=None):
+    """The loop for 1 + n_ticks ticks on bench_devices() and a FrozenClock, with the owner's cues
+    (no brick) and `sender` (a TelemetrySender or None) in its slack -> (LoopStats, log). Unless
+    bare: supervised (a heartbeat page), plausibility-checked, its log written to a temporary
+    file (removed)."""
     config = defaults()
     if gains is None:
         gains = synthetic_gains()
     dev = bench_devices()
     core = Core(gains, config, 0.0, dev.counts_per_rot)
-    log = logfile.LogBuffer(min(n_ticks + 1, config['log_max_rows']))
+    extra = {}
+    writer = None
+    if bare:
+        log = logfile.LogBuffer(min(n_ticks + 1, config['log_max_rows']))
+    else:
+        fd, path = tempfile.mkstemp(prefix='tipbot-bench-', suffix='.log')
+        os.close(fd)
+        writer = logfile.open_run_log(path, n_ticks + 1)
+        os.unlink(path)
+        writer.header({})
+        log = logfile.LogBuffer.for_file(writer, (1, 1, 1, 1), config['log_max_rows'])
+        _, page, words = heartbeat.create_page()
+        extra = dict(heartbeat=heartbeat.Heartbeat(words, os.getppid(), page),
+                     encoder_bound=EncoderBound(config, dev.counts_per_rot, gains.ts_s))
     loop = ControlLoop(dev, core, FrozenClock(), log, gains.ts_s, 8.0,
                        battery_period_s=config['battery_period_s'],
                        max_consecutive_overruns=config['limits']['max_consecutive_overruns'],
-                       duration_s=(n_ticks + 1) * gains.ts_s, realtime_priority=0)
-    return loop.run(), log
+                       duration_s=(n_ticks + 1) * gains.ts_s, realtime_priority=0, **extra)
+    loop.side = slack.combine(OwnerCues(streams=()).in_loop(loop, config['limits']['warn_battery_v']),
+                              sender.attach(log, loop.stats, motor_polarity(config)) if sender else None)
+    stats = loop.run()
+    if writer is not None:
+        log.count = stats.ticks
+        log.flush()
+        writer.close({})
+    return stats, log
+
+
+def local_sender(every):
+    """A TelemetrySender to a UDP socket of this process on 127.0.0.1 (never read: the kernel
+    drops what does not fit its buffer, the sends still succeed) -> (sender, socket)."""
+    sink = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sink.bind(('127.0.0.1', 0))
+    return TelemetrySender('127.0.0.1:{}'.format(sink.getsockname()[1]), every), sink
 
 
 def _percentiles_ms(times_s):
@@ -209,12 +252,20 @@ def main(argv=None):
     args = sys.argv[1:] if argv is None else argv
     n_ticks = None
     gains_path = None
-    usage = 'usage: python3 -m tipbot_fw.bench --ticks N [--gains FILE]'
+    bare = False
+    every = None
+    usage = 'usage: python3 -m tipbot_fw.bench --ticks N [--gains FILE] [--bare] [--telemetry-every M]'
     while args:
+        if args[0] == '--bare':
+            bare = True
+            args = args[1:]
+            continue
         if args[0] == '--ticks' and len(args) > 1 and args[1].isdigit():
             n_ticks = int(args[1])
         elif args[0] == '--gains' and len(args) > 1:
             gains_path = args[1]
+        elif args[0] == '--telemetry-every' and len(args) > 1 and args[1].isdigit() and int(args[1]) > 0:
+            every = int(args[1])
         else:
             sys.stderr.write(usage + '\n')
             return 2
@@ -225,11 +276,20 @@ def main(argv=None):
     if gains_path is None and os.path.isfile(REPO_GAINS):
         gains_path = REPO_GAINS
     gains = load_gains(gains_path) if gains_path else None
-    stats, _ = run_memory(n_ticks, gains)
+    sender, sink = local_sender(every) if every else (None, None)
+    stats, _ = run_memory(n_ticks, gains, bare, sender)
     if stats.ticks != n_ticks + 1:
         sys.stderr.write('bench: the loop stopped after {} ticks\n'.format(stats.ticks))
         return 1
-    sys.stdout.write('ticks {} (+1 start tick), gains {}\n'.format(n_ticks, gains_path or 'synthetic'))
+    sys.stdout.write('ticks {} (+1 start tick), gains {}{}\n'.format(
+        n_ticks, gains_path or 'synthetic', ', bare (no heartbeat, plausibility or log file)' if bare else ''))
+    if sender is not None:
+        ts_s = gains.ts_s if gains else 0.005
+        sys.stdout.write('telemetry: {} datagrams of {} bytes in {} ticks (one every {}: {:.0f} per second at '
+                         '{:g} ms), {} not sent\n'.format(sender.sent, SIZE, n_ticks + 1, every,
+                                                         1.0 / (every * ts_s), ts_s * 1e3, sender.errors))
+        sender.close()
+        sink.close()
     return 0
 
 

@@ -1,14 +1,25 @@
-"""Command line: python3 -m tipbot_fw {run,check,calibrate,bench,identify} ... (exit codes: tipbot_fw.safety)."""
+"""Command line: python3 -m tipbot_fw {run,check,calibrate,bench,identify} ... (exit codes: tipbot_fw.safety).
+
+Order of a run: the signal handlers (before anything else), the supervisor's page if there is
+one (tipbot_fw.supervisor), the configuration, gains and telemetry target (--telemetry: its
+address resolved), the brick's lights and speaker (not with --quiet), the log (path checked,
+room reserved), then the devices, then the session. Under the supervisor the options reach this
+command line unchanged (the launcher passes its arguments on).
+"""
 import argparse
 
-from tipbot_fw import identify, logfile, safety
+from tipbot_fw import heartbeat, identify, logfile, safety
 from tipbot_fw.bench import brick_bench
 from tipbot_fw.calibration import calibrate_gyro
 from tipbot_fw.clock import MonotonicClock
-from tipbot_fw.config import ConfigError, load_config
+from tipbot_fw.config import (SYSFS_ROOT, SYSFS_ROOT_ENV, ConfigError, check_config_against_gains,
+                              default_sysfs_root, load_config)
 from tipbot_fw.console import say as _say
+from tipbot_fw.cues import OwnerCues
+from tipbot_fw.feedback import BrickSignals
 from tipbot_fw.gains import GainsError, load_gains
-from tipbot_fw.session import log_refused_start, run_session
+from tipbot_fw.session import log_refused_start, open_log, run_session
+from tipbot_fw.telemetry import DEFAULT_EVERY, TelemetryError, TelemetrySender
 
 CHECK_PERIOD_S = 0.005   # gyro sampling period for check/calibrate (no gains file involved)
 
@@ -23,6 +34,12 @@ def _positive_float(text):
     return v
 
 
+def _positive_int(text):
+    if not text.isdigit() or int(text) < 1:
+        raise argparse.ArgumentTypeError('must be a positive whole number, got {!r}'.format(text))
+    return int(text)
+
+
 def _parser():
     p = argparse.ArgumentParser(prog='python3 -m tipbot_fw', description='tipbot firmware',
                                 epilog=safety.__doc__.split('\n', 1)[1],
@@ -31,8 +48,8 @@ def _parser():
 
     def common(sp):
         sp.add_argument('--config', metavar='FILE', help='JSON overriding fields of default_config.json')
-        sp.add_argument('--sysfs-root', metavar='DIR', default='/sys/class',
-                        help='root of the ev3dev sysfs tree (default /sys/class)')
+        sp.add_argument('--sysfs-root', metavar='DIR', default=default_sysfs_root(),
+                        help='root of the ev3dev sysfs tree (default ${} or {})'.format(SYSFS_ROOT_ENV, SYSFS_ROOT))
 
     sp = sub.add_parser('run', help='balance')
     sp.add_argument('--gains', metavar='FILE', required=True)
@@ -40,6 +57,12 @@ def _parser():
     sp.add_argument('--log', metavar='FILE',
                     help='run log (default tipbot-YYYYmmdd-HHMMSS.log in logs/ if the current directory '
                     'holds tipbot_fw/, else in the current directory)')
+    sp.add_argument('--quiet', action='store_true',
+                    help='no lights, no tones, no words on the brick\'s screen (messages stay on stderr)')
+    sp.add_argument('--telemetry', metavar='HOST:PORT',
+                    help='send live telemetry (UDP) there, e.g. to `python -m hostsim watch --port PORT`')
+    sp.add_argument('--telemetry-every', metavar='N', type=_positive_int, default=DEFAULT_EVERY,
+                    help='one datagram every N ticks (default {})'.format(DEFAULT_EVERY))
     common(sp)
     sp = sub.add_parser('check', help='devices, drivers, battery, gyro stillness; never drives motors')
     common(sp)
@@ -69,29 +92,106 @@ def _open_devices(config, sysfs_root):
         return None, why
 
 
-def main(argv=None):
+def main(argv=None, guard=None, environ=None):
+    """-> exit status. ``guard``: the SignalGuard tipbot_fw.__main__ installed first thing (else
+    one is installed here); ``environ``: where to look for the supervisor (os.environ)."""
+    own = guard is None
+    guard = safety.SignalGuard().install() if own else guard
+    try:
+        hbt, problem = heartbeat.attach(environ)
+        guard.heartbeat = hbt
+        guard.check_pending()
+        return _main(argv, guard, hbt, problem)
+    except (KeyboardInterrupt, safety.Terminated) as e:
+        _, code, msg = safety.classify(e)
+        _say('stopped before any device was touched: {} (exit {}); no log: nothing ran'.format(msg, code))
+        return code
+    finally:
+        if own:
+            guard.restore()
+
+
+def _main(argv, guard, hbt, supervisor_problem):
     args = _parser().parse_args(argv)
     if args.command is None:
         _parser().print_help()
+        return safety.EXIT_INVALID
+    if supervisor_problem:
+        _say('refused to start: {}; no log: nothing ran'.format(supervisor_problem))
         return safety.EXIT_INVALID
     if args.command == 'identify':   # one motor, not the robot's full set of devices
         return identify.main_identify(args, say=_say)
     try:
         config = load_config(args.config)
         gains = load_gains(args.gains) if getattr(args, 'gains', None) else None
-    except (ConfigError, GainsError) as e:
+        if gains is not None:
+            check_config_against_gains(config, gains, args.config or 'the default configuration')
+        telemetry = _telemetry(args)
+    except (ConfigError, GainsError, TelemetryError) as e:
         _say('refused to start: {}'.format(e))
         return safety.EXIT_INVALID
-    devices, why = _open_devices(config, args.sysfs_root)
+    cues = _cues(args)      # before the log: a signal now leaves no log behind to finish
+    try:
+        log = None
+        if args.command == 'run':
+            try:
+                log = open_log(_log_path(args), config, gains.ts_s, args.duration)
+            except (OSError, logfile.LogWriteError) as e:
+                _say('refused to start: {}; nothing was started'.format(e.strerror or e))
+                return safety.EXIT_INVALID
+        return _start(args, config, gains, log, hbt, guard, cues, telemetry)
+    finally:
+        cues.close()
+        if telemetry is not None:
+            telemetry.close()
+
+
+def _start(args, config, gains, log, hbt, guard, cues, telemetry):
+    """The devices, then the command; a run refused here (devices missing, a signal while they
+    are set up) gets its log and its stop cue."""
+    try:
+        devices, why = _open_devices(config, args.sysfs_root)
+    except (KeyboardInterrupt, safety.Terminated) as e:   # the device layer stopped what it had set up
+        if log is not None:
+            _refused(log, gains, config, args, e, guard, cues)
+        return safety.classify(e)[1]
     if devices is None:
-        if args.command == 'run':     # a run's every exit but a refused command line writes a log
-            log_refused_start(_log_path(args), gains, config, args.duration,
-                              safety.DevicesMissing(' '.join(why.split())), say=_say)
+        if log is not None:     # every exit of a run writes a log, once its path is good
+            _refused(log, gains, config, args, safety.DevicesMissing(' '.join(why.split())), guard, cues)
         return safety.EXIT_DEVICES
     try:
+        if args.command == 'run':
+            return _run(args, config, gains, devices, log, hbt, guard, cues, telemetry)
         return COMMANDS[args.command](args, config, gains, devices)
     finally:
         devices.close()
+
+
+def _refused(log, gains, config, args, error, guard, cues):
+    """A run refused before its session: the log of the header and why, then the stop cue (with
+    further signals only counted, as after a session)."""
+    log_refused_start(log, gains, config, args.duration, error, say=_say)
+    guard.disarm()
+    reason, code, _ = safety.classify(error)
+    cues.stopped(reason, code)
+
+
+def _telemetry(args):
+    if getattr(args, 'telemetry', None) is None:
+        return None
+    return TelemetrySender(args.telemetry, args.telemetry_every)
+
+
+def _cues(args):
+    """The owner's cues of a run: words, and the brick's lights and tones unless --quiet."""
+    if args.command != 'run':
+        return OwnerCues(streams=())
+    if args.quiet:
+        return OwnerCues(screen=False)
+    brick = BrickSignals(args.sysfs_root)
+    for problem in brick.problems:
+        _say('no lights or tones: ' + problem)
+    return OwnerCues(brick=brick)
 
 
 def _log_path(args):
@@ -100,12 +200,18 @@ def _log_path(args):
     return args.log
 
 
-def _run(args, config, gains, devices):
-    log_path = _log_path(args)
-    _say('running {} ({} variant, ts {} s), log {}'.format(gains.path, gains.model_variant,
-                                                         gains.ts_s, log_path))
-    code, _ = run_session(devices, gains, config, MonotonicClock(), log_path=log_path,
-                          duration_s=args.duration)
+def _run(args, config, gains, devices, log, hbt, guard, cues, telemetry):
+    _say('running {} ({} variant, ts {} s), log {}{}'.format(
+        gains.path, gains.model_variant, gains.ts_s, log.path,
+        '' if hbt.supervised else ' (no supervisor: start with the launcher ev3/tipbot, or python3 -m '
+        'tipbot_fw.supervisor -- run ..., to have the motors stopped whatever ends this process)'))
+    code, header = run_session(devices, gains, config, MonotonicClock(), duration_s=args.duration, log=log,
+                               heartbeat=hbt, guard=guard, cues=cues, telemetry=telemetry)
+    if telemetry is not None:
+        t = header['telemetry']
+        _say('telemetry: {} datagrams to {} (one every {} ticks), {} not sent{}'.format(
+            t['sent'], t['target'], t['every_ticks'], t['errors'],
+            ': ' + t['first_error'] if t['first_error'] else ''))
     return code
 
 
@@ -152,4 +258,5 @@ def _bench(args, config, gains, devices):
     return safety.EXIT_OK
 
 
-COMMANDS = {'run': _run, 'check': _check, 'calibrate': _calibrate, 'bench': _bench}
+# The commands that take the devices as they are ('run' has its log, heartbeat, cues: _start)
+COMMANDS = {'check': _check, 'calibrate': _calibrate, 'bench': _bench}

@@ -13,6 +13,8 @@ Every field is validated; errors name the file and the dotted field path. Fields
                                                from it; th2, th3 are the joint encoders' zeros)
   limits.th1_rad, limits.th2_rad, limits.th3_rad   |angle| beyond -> motors stopped in that tick
   limits.min_battery_v                         refuse to start below this battery voltage
+  limits.warn_battery_v                        warn (words, light, tone) when a reading while
+                                               balancing is below this voltage
   limits.max_consecutive_overruns              this many late ticks in a row -> safe stop
   filters.encoder_rate_cutoff_hz               low-pass of the differentiated encoder positions
   filters.gyro_rate_cutoff_hz                  low-pass of the gyro rate (th1_dot)
@@ -30,7 +32,8 @@ Every field is validated; errors name the file and the dotted field path. Fields
   gyro_bias_quiet_dps                          the tracking learns only from samples whose
                                                corrected rate is within +- this (the robot at rest)
   battery_period_s                             battery re-read period (outside the ticks)
-  log_max_rows                                 log buffer rows (a ring: the newest are kept)
+  log_max_rows                                 rows the log file holds at most (the first ones;
+                                               the rest of a longer run is counted, not recorded)
   realtime_priority                            SCHED_FIFO priority to request, 0 = don't
 """
 import copy
@@ -43,6 +46,15 @@ DEFAULT_PATH = os.path.join(os.path.dirname(os.path.abspath(__file__)), 'default
 # The four motors' roles, in the order of every per-motor tuple (duties, counts, polarities).
 MOTOR_ROLES = ('right_wheel', 'left_wheel', 'joint2', 'joint3')
 
+# The ev3dev sysfs tree; TIPBOT_SYSFS_ROOT names another (a fake EV3 behind the launcher: make
+# sim-brick), --sysfs-root one for a single command.
+SYSFS_ROOT = '/sys/class'
+SYSFS_ROOT_ENV = 'TIPBOT_SYSFS_ROOT'
+
+
+def default_sysfs_root(environ=None):
+    return (os.environ if environ is None else environ).get(SYSFS_ROOT_ENV) or SYSFS_ROOT
+
 
 class ConfigError(ValueError):
     """Invalid configuration; the message names the file and the field."""
@@ -52,6 +64,9 @@ _number = fields.number
 _one_of = fields.one_of
 _SIGN = _one_of(1, -1)
 _MOTOR_PORT = _one_of('outA', 'outB', 'outC', 'outD')
+
+# The most late ticks in a row a configuration may allow (0.5 s at 5 ms) before the safe stop.
+MAX_CONSECUTIVE_OVERRUNS = 100
 
 # Leaf validators by dotted path; the set of paths is also the set of allowed fields.
 SPEC = {
@@ -71,28 +86,29 @@ SPEC = {
     'polarity.joint2': _SIGN,
     'polarity.joint3': _SIGN,
     'gyro_sign': _SIGN,
-    'wheel_radius_m': _number(0, 0.2),
+    'wheel_radius_m': _number(0.005, 0.1),      # LEGO wheels: radius 8 mm to 47 mm
     'start_pose_rad.th1': _number(-1.5, 1.5, lo_open=False),
     'start_pose_rad.th2': _number(-3.2, 3.2, lo_open=False),
     'start_pose_rad.th3': _number(-3.2, 3.2, lo_open=False),
     'limits.th1_rad': _number(0, 1.5),
     'limits.th2_rad': _number(0, 3.2),
     'limits.th3_rad': _number(0, 3.2),
-    'limits.min_battery_v': _number(0, 10, lo_open=False),
-    'limits.max_consecutive_overruns': _number(1, 1000, lo_open=False, integer=True),
-    'filters.encoder_rate_cutoff_hz': _number(0, 1000),
-    'filters.gyro_rate_cutoff_hz': _number(0, 1000),
-    'filters.disturbance_cutoff_hz': _number(0, 1000, allow_null=True),
+    'limits.min_battery_v': _number(5.0, 9.0, lo_open=False),   # within what a battery reads (plausibility)
+    'limits.warn_battery_v': _number(5.0, 9.0, lo_open=False),  # and not below min_battery_v: validate()
+    'limits.max_consecutive_overruns': _number(1, MAX_CONSECUTIVE_OVERRUNS, lo_open=False, integer=True),
+    'filters.encoder_rate_cutoff_hz': _number(0.5, 500, lo_open=False),   # and below Nyquist: check_config_against_gains
+    'filters.gyro_rate_cutoff_hz': _number(0.5, 500, lo_open=False),
+    'filters.disturbance_cutoff_hz': _number(0.01, 100, lo_open=False, allow_null=True),
     'gyro_calibration.settle_s': _number(0, 10, lo_open=False),
-    'gyro_calibration.duration_s': _number(0, 10),
+    'gyro_calibration.duration_s': _number(0.01, 10, lo_open=False),
     'gyro_calibration.max_rate_spread_dps': _number(0, 100, lo_open=False),
     'gyro_calibration.max_bias_dps': _number(0, 100, lo_open=False),
     'gyro_calibration.max_angle_change_deg': _number(0, 90, lo_open=False),
-    'gyro_bias_time_constant_s': _number(0, 3600, allow_null=True),
+    'gyro_bias_time_constant_s': _number(1, 3600, lo_open=False, allow_null=True),
     'gyro_bias_quiet_dps': _number(0, 100),
-    'battery_period_s': _number(0, 60),
-    'log_max_rows': _number(1, 1000000, lo_open=False, integer=True),
-    'realtime_priority': _number(0, 99, lo_open=False, integer=True),
+    'battery_period_s': _number(0.1, 10, lo_open=False),
+    'log_max_rows': _number(1, 720000, lo_open=False, integer=True),   # 1 h at 5 ms: 290 MB of file
+    'realtime_priority': _number(0, 98, lo_open=False, integer=True),  # the supervisor takes one above
 }
 
 
@@ -130,6 +146,36 @@ def validate(config, source):
     for i, m in enumerate(MOTOR_ROLES):
         if ports.count(ports[i]) > 1:
             f.fail('ports.' + m, 'is {}, the port of another motor too'.format(ports[i]))
+    lim = config['limits']
+    if lim['warn_battery_v'] < lim['min_battery_v']:    # a warning the next start would refuse to run with
+        f.fail('limits.warn_battery_v', 'is {!r} V, below limits.min_battery_v = {!r} V: the warning would come '
+               'after the battery is too low to start again'.format(lim['warn_battery_v'], lim['min_battery_v']))
+    for j in ('th1', 'th2', 'th3'):     # a start beyond the stop limits would be a "fall" at tick 0
+        pose, limit = config['start_pose_rad'][j], config['limits'][j + '_rad']
+        if abs(pose) >= limit:
+            f.fail('start_pose_rad.' + j, 'is {!r} rad, beyond limits.{}_rad = {!r}: the run would stop at its first '
+                   'tick'.format(pose, j, limit))
+
+
+# How far the configured wheel radius may be from the one the gains were designed for.
+WHEEL_RADIUS_RTOL = 0.05
+
+
+def check_config_against_gains(config, gains, source):
+    """What a configuration must agree on with the gains file it runs: filter cut-offs below the
+    Nyquist frequency of the gains' period, and the wheel radius the gains' model was made for
+    (its recorded parameters, when there are any). ConfigError naming source and field."""
+    f = fields.Fields(source, ConfigError)
+    nyquist = 0.5 / gains.ts_s
+    for name in ('encoder_rate_cutoff_hz', 'gyro_rate_cutoff_hz', 'disturbance_cutoff_hz'):
+        v = config['filters'][name]
+        if v is not None and v >= nyquist:
+            f.fail('filters.' + name, 'is {!r} Hz, not below the Nyquist frequency {:g} Hz of the gains\' period '
+                   '{} s'.format(v, nyquist, gains.ts_s))
+    rw = (getattr(gains, 'parameters', None) or {}).get('rw_m')
+    if fields.is_number(rw) and rw > 0 and abs(config['wheel_radius_m'] - rw) > WHEEL_RADIUS_RTOL * rw:
+        f.fail('wheel_radius_m', 'is {!r} m, but the gains {} were designed for wheels of radius {!r} m'.format(
+            config['wheel_radius_m'], gains.path, rw))
 
 
 def motor_polarity(config):

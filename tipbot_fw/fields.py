@@ -13,9 +13,14 @@ import json
 import math
 
 
+def printable(text):
+    """text with what would break a one-line message (newlines, control characters) escaped."""
+    return ''.join(c if c.isprintable() else repr(c)[1:-1] for c in str(text))
+
+
 def message(source, field, problem):
-    """The one format of a bad field."""
-    return '{}: field {} {}'.format(source, field, problem)
+    """The one format of a bad field (one line, whatever the field's name holds)."""
+    return '{}: field {} {}'.format(source, printable(field), printable(problem))
 
 
 def is_number(v):
@@ -155,18 +160,111 @@ class Fields(object):
             self.fail(prefix + unknown[0], 'is unknown')
 
 
+class JsonProblem(ValueError):
+    """A JSON text that cannot be taken as it is; the message says where (field or position)."""
+
+
+class _Huge(object):
+    """A number JSON can write and a float cannot hold (1e400, an integer of 400 digits)."""
+
+    def __init__(self, text):
+        self.text = text
+
+
+MAX_DEPTH = 32          # nesting of objects and lists: deeper is no file of ours
+MAX_FILE_BYTES = 8 * 1024 * 1024
+_MAX_INT_DIGITS = 30
+
+
+def _parse_int(text):
+    digits = text.lstrip('-')
+    if len(digits) > _MAX_INT_DIGITS:
+        return _Huge(text if len(text) < 24 else text[:12] + '...({} digits)'.format(len(digits)))
+    return int(text)
+
+
+def _parse_float(text):
+    v = float(text)
+    if math.isinf(v):
+        return _Huge(text)
+    return v
+
+
+class _NotJson(_Huge):
+    """NaN, Infinity or -Infinity: Python's json reads them, JSON has no such numbers."""
+
+
+def _parse_constant(name):
+    return _NotJson(name)
+
+
+def _pairs(pairs):
+    doc = {}
+    for key, value in pairs:
+        if key in doc:
+            raise JsonProblem('key {!r} appears twice in one object'.format(key))
+        doc[key] = value
+    return doc
+
+
+def _check_values(doc):
+    """The first value JSON parsed that no field can take: (dotted path, problem), or None."""
+    stack = [('', doc, 0)]
+    while stack:
+        path, v, depth = stack.pop()
+        if depth > MAX_DEPTH:
+            return path, 'is nested deeper than {} levels'.format(MAX_DEPTH)
+        if isinstance(v, _NotJson):
+            return path, 'is {}, not a finite number (JSON has none)'.format(v.text)
+        if isinstance(v, _Huge):
+            return path, 'is {}, beyond the range of a number'.format(v.text)
+        if isinstance(v, dict):
+            stack.extend(((path + '.' if path else '') + str(k), x, depth + 1) for k, x in sorted(v.items(), reverse=True))
+        elif isinstance(v, list):
+            stack.extend(('{}[{}]'.format(path, i), x, depth + 1) for i, x in reversed(list(enumerate(v))))
+    return None
+
+
+def loads(data):
+    """Parse UTF-8 JSON bytes strictly -> the document. JsonProblem, one line, for anything a
+    reader cannot take: invalid UTF-8 or JSON, NaN or Infinity, duplicate keys, numbers no float
+    holds (1e400, 10**400 written out), nesting deeper than MAX_DEPTH."""
+    try:
+        text = data.decode('utf-8')
+    except UnicodeError as e:
+        raise JsonProblem('is not UTF-8 text: {}'.format(e))
+    try:
+        doc = json.loads(text, parse_int=_parse_int, parse_float=_parse_float,
+                         parse_constant=_parse_constant, object_pairs_hook=_pairs)
+    except JsonProblem:
+        raise
+    except RecursionError:
+        raise JsonProblem('is nested deeper than {} levels'.format(MAX_DEPTH))
+    except (ValueError, TypeError, OverflowError, RuntimeError) as e:
+        raise JsonProblem('not valid JSON: {}'.format(str(e).splitlines()[0] if str(e) else type(e).__name__))
+    bad = _check_values(doc)
+    if bad:
+        where, problem = bad
+        raise JsonProblem('field {} {}'.format(printable(where), problem) if where else problem)
+    return doc
+
+
 def read_json(path, error):
-    """(parsed document, raw bytes) of a UTF-8 JSON file; error('<path>: ...') if it cannot be
-    read or is not JSON."""
+    """(parsed document, raw bytes) of a UTF-8 JSON file; error('<path>: ...'), one line, if it
+    cannot be read or parsed (see loads)."""
     try:
         with open(path, 'rb') as f:
-            data = f.read()
+            data = f.read(MAX_FILE_BYTES + 1)
     except OSError as e:
         raise error('{}: cannot read: {}'.format(path, e.strerror or e))
+    except (TypeError, ValueError) as e:    # a path that is no path (an embedded NUL)
+        raise error('{!r}: cannot read: {}'.format(path, e))
+    if len(data) > MAX_FILE_BYTES:
+        raise error('{}: larger than {} MB: not one of our files'.format(path, MAX_FILE_BYTES // (1024 * 1024)))
     try:
-        return json.loads(data.decode('utf-8')), data
-    except (ValueError, UnicodeError) as e:
-        raise error('{}: not valid JSON: {}'.format(path, e))
+        return loads(data), data
+    except JsonProblem as e:
+        raise error('{}: {}'.format(path, e))
 
 
 def read_object(path, error):

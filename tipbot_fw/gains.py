@@ -79,14 +79,10 @@ def gains_from_dict(doc, source='<gains>', sha256=None, expected_ts_s=None):
         f.fail('model_variant', "is {!r}, expected 'paper' or 'physical'".format(doc['model_variant']))
     g.model_variant = doc['model_variant']
 
-    g.ts_s = f.number('ts_s', doc['ts_s'])
-    if not 0.0 < g.ts_s <= 1.0:
-        f.fail('ts_s', 'is {!r} s, expected a period in (0, 1] s'.format(g.ts_s))
+    g.ts_s = _scalar(f, doc, 'ts_s')
     if expected_ts_s is not None and abs(g.ts_s - expected_ts_s) > 1e-12 * expected_ts_s:
         f.fail('ts_s', 'is {!r} s, expected {!r} s'.format(g.ts_s, expected_ts_s))
-    g.u_max_v = f.number('u_max_v', doc['u_max_v'])
-    if not 0.0 < g.u_max_v <= 12.0:
-        f.fail('u_max_v', 'is {!r} V, expected a saturation in (0, 12] V'.format(g.u_max_v))
+    g.u_max_v = _scalar(f, doc, 'u_max_v')
 
     g.state_names = list(f.check('state_names', doc['state_names'], fields.strings(N_STATES)))
     g.input_names = list(f.check('input_names', doc['input_names'], fields.strings(N_INPUTS)))
@@ -98,6 +94,10 @@ def gains_from_dict(doc, source='<gains>', sha256=None, expected_ts_s=None):
             f.fail('state_units[{}]'.format(i), 'is {!r}, expected one of {}'.format(
                 unit, ', '.join(sorted(allowed))))
         scale.append(allowed[unit])
+    for i in range(5):      # a position and its rate in one length unit (m with m/s, cm with cm/s)
+        if units[i + 5] != units[i] + '/s':
+            f.fail('state_units[{}]'.format(i + 5), 'is {!r}, the rate of state {} in {!r} must be in {!r}'.format(
+                units[i + 5], g.state_names[i], units[i], units[i] + '/s'))
     g.state_units_file = units
     g.state_scale = np.array(scale)
     input_units = f.check('input_units', doc['input_units'], fields.strings(N_INPUTS))
@@ -155,7 +155,106 @@ def gains_from_dict(doc, source='<gains>', sha256=None, expected_ts_s=None):
     g.detector_spectral_radius = rho_det
     g.parameters_sha256 = doc['parameters_sha256']
     g.generator = doc['generator']
+    g.parameters = doc['parameters']
+    g.model_options = doc['model_options']
+    check_physics(g, f)
     return g
+
+
+# ---------------------------------------------------------------------------- physical bounds
+# Table-driven, so that new fields (another estimator's matrices) add a line, not code.
+# Scalars: field -> (lo, hi, unit, why), checked before anything uses them.
+SCALAR_BOUNDS = {
+    'ts_s': (0.001, 0.050, 's', 'a loop period of 1 to 50 ms (the brick cannot tick faster; slower does not balance)'),
+    'u_max_v': (1.0, 11.0, 'V', 'a motor voltage limit an EV3 battery can give (tipbot_fw.plausibility)'),
+}
+# Matrices, in SI after the unit conversion: field -> largest |entry| a design of this robot can
+# have, and why. 10 to 100 times what the committed designs have: a relabelled unit (x100) or a
+# scaled matrix shows up here, or in a structure check below.
+MATRIX_BOUNDS = {
+    'A': (100.0, 'a discrete model at 1-50 ms is close to the identity'),
+    'B': (10.0, 'one volt for one period moves no state that far'),
+    'E': (10.0, 'as B: the disturbances are input disturbances in volts'),
+    'K': (1e4, 'V per SI unit: more saturates the motors on one sensor count'),
+    'K_w': (5.0, 'V per V of estimated disturbance: more than compensating it'),
+    'L1': (100.0, 'the detector gains of a stable detector'),
+    'L2': (100.0, 'the detector gains of a stable detector'),
+    'G_w': (1e5, 'V per SI unit of innovation'),
+}
+# Structure checks: (field, function(g) -> problem or None). The Section 6 detector's disturbance
+# estimate inverts the input disturbance's effect (w^ = G_w C E w), and its L2 is E G_w.
+_STRUCTURE_RTOL = 1e-6
+
+
+def _disturbance_inverse(g):
+    err = np.max(np.abs(g.G_w.dot(g.C).dot(g.E)[np.ix_(ACTUATED_INPUTS, ACTUATED_INPUTS)] - np.eye(len(ACTUATED_INPUTS))))
+    if err > _STRUCTURE_RTOL:
+        return ('does not recover an input disturbance: G_w C E differs from the identity on the actuated inputs '
+                'by up to {:.3g} (a scaled G_w?)'.format(err))
+    return None
+
+
+def _detector_l2(g):
+    err = np.max(np.abs(g.L2 - g.E.dot(g.G_w)))
+    if err > _STRUCTURE_RTOL * max(1.0, float(np.max(np.abs(g.L2)))):
+        return 'is not E G_w (they differ by up to {:.3g}): L2 and G_w come from different designs'.format(err)
+    return None
+
+
+STRUCTURE_CHECKS = [('G_w', _disturbance_inverse), ('L2', _detector_l2)]
+
+# The wheels in the model and in the recorded parameters: a wheel's back-EMF (and viscous
+# friction) acts on its own speed as its input does, scaled: in continuous time the column of
+# d_dot in A is -k times the wheel's input column of B, k = (Ke + beta Ra / Km) / R_w (beta only
+# with model_options.include_viscous_friction); in discrete time (A - I)[:, d_dot] - ts e_d =
+# -k B[:, u], exactly. In SI this holds only if the file's units are the ones its matrices were
+# made in: a state relabelled m -> cm moves k a hundredfold.
+_WHEELS = ((0, 5, 0, 'right_wheel'), (1, 6, 1, 'left_wheel'))
+_WHEEL_RTOL = 1e-3
+
+
+def _wheel_units(g):
+    p = g.parameters
+    names = ['rw_m'] + ['{}_{}'.format(r, n) for *_, r in _WHEELS for n in ('ke_v_s', 'beta_nm_s', 'ra_ohm', 'km_nm_a')]
+    if not all(fields.is_number(p.get(n)) and p[n] >= 0 for n in names) or not p['rw_m'] > 0:
+        return None     # no parameters recorded (a synthetic design): nothing to compare with
+    friction = g.model_options.get('include_viscous_friction', True) is not False
+    for pos, rate, inp, role in _WHEELS:
+        a = (g.A - np.eye(N_STATES))[:, rate].copy()
+        a[pos] -= g.ts_s
+        b = g.B[:, inp]
+        if not b.dot(b) > 0:
+            return 'has no effect of the {} input'.format(role)
+        k_fit = -a.dot(b) / b.dot(b)
+        km = p[role + '_km_nm_a']
+        k_par = (p[role + '_ke_v_s'] + (p[role + '_beta_nm_s'] * p[role + '_ra_ohm'] / km if friction and km > 0 else 0.0)) / p['rw_m']
+        if not abs(k_fit - k_par) <= _WHEEL_RTOL * abs(k_par):
+            return ('disagree with the matrices: in SI the {} back-EMF is {:.4g} V s/m by the matrices and {:.4g} by the '
+                    'recorded parameters (a unit relabelled without converting the matrices?)'.format(role, k_fit, k_par))
+    return None
+
+
+def _scalar(f, doc, key):
+    lo, hi, unit, why = SCALAR_BOUNDS[key]
+    v = f.number(key, doc[key])
+    if not lo <= v <= hi:
+        f.fail(key, 'is {!r} {}, expected {} to {} {}: {}'.format(v, unit, lo, hi, unit, why))
+    return v
+
+
+def check_physics(g, f):
+    """The bounds and structure checks above on validated Gains g (SI); f: the file's Fields."""
+    problem = _wheel_units(g)
+    if problem:
+        f.fail('state_units', problem)
+    for key, check in STRUCTURE_CHECKS:
+        problem = check(g)
+        if problem:
+            f.fail(key, problem)
+    for key, (bound, why) in sorted(MATRIX_BOUNDS.items()):
+        largest = float(np.max(np.abs(getattr(g, key))))
+        if not largest <= bound:
+            f.fail(key, 'has an entry of {:.4g} (in SI), beyond {:g}: {}'.format(largest, bound, why))
 
 
 def load_gains(path, expected_ts_s=None):

@@ -50,6 +50,7 @@ from tipbot_fw import ev3io, logfile
 from tipbot_fw.clock import MonotonicClock
 from tipbot_fw.config import ConfigError, load_config
 from tipbot_fw.console import say
+from tipbot_fw.plausibility import check_battery
 from tipbot_fw.safety import (EXIT_DEVICES, EXIT_ERROR, EXIT_INTERRUPT, EXIT_INVALID, EXIT_OK,
                               EXIT_REFUSED, DeviceFailure, LowBattery, SafetyStop, run_guarded)
 
@@ -305,6 +306,7 @@ def run_identify(motor, clock, duty=DEFAULTS['duty'], seconds=DEFAULTS['seconds'
         except (OSError, ValueError) as e:
             raise DeviceFailure('battery read failed: {}'.format(e))
         header['battery_v_start'] = bv
+        check_battery(bv)
         if min_battery_v is not None and bv < min_battery_v:
             raise LowBattery('battery at {:.2f} V is below limits.min_battery_v = {} V: charge it'.format(
                 bv, min_battery_v))

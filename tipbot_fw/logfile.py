@@ -1,19 +1,17 @@
-"""Run log: per-tick rows in a preallocated buffer, written once at the end (docs/log-format.md).
+"""Run log: the columns, per-tick rows in a preallocated ring, written to the file in chunks in
+the loop's slack (docs/log-format.md). The container (records, CRCs, reading a log cut short)
+is tipbot_fw.logcontainer.
 
 Python 3.5-safe; the reader (read_log) is what host tools use.
 """
-import json
 import os
 import struct
 import time
-import zlib
 
 import numpy as np
 
-MAGIC = b'TIPBLOG\n'
-FORMAT_VERSION = 1
-_COUNTS = struct.Struct('<IIIQ')   # format_version, header_len, ncols, nrows
-_CRC = struct.Struct('<I')
+from tipbot_fw import logcontainer
+from tipbot_fw.logcontainer import FORMAT_VERSION, MAGIC, LogFormatError, LogWriteError, LogWriter  # noqa: F401
 
 STATE_NAMES = ('d_r', 'd_l', 'th1', 'th2', 'th3', 'd_r_dot', 'd_l_dot', 'th1_dot', 'th2_dot', 'th3_dot')
 STATE_UNITS = ('m', 'm', 'rad', 'rad', 'rad', 'm/s', 'm/s', 'rad/s', 'rad/s', 'rad/s')
@@ -101,20 +99,73 @@ def to_file_layout(mem_rows, polarity, t0=0.0):
     return out
 
 
+# Rows a chunk of the file holds: written in the slack of one tick every CHUNK_ROWS ticks
+# (0.25 s at 5 ms), so a crash or a power cut loses at most that much of what the file had
+# been sent; the ring in memory holds RING_CHUNKS chunks, so a chunk may wait for a tick with
+# slack (tipbot_fw.loop) without being overwritten.
+CHUNK_ROWS = 50
+RING_CHUNKS = 8
+
+
 class LogBuffer(object):
-    """Preallocated rows; a ring when a run outlives it (the newest rows are kept).
+    """Preallocated rows; a ring when a run outlives it.
 
     Tick k's row is packed (struct, little-endian float64, in-memory layout) into the
     bytearray `data` at byte offset (k % capacity) * MEM_ROW_BYTES; `mem` is a numpy view of the
     same memory. The loop keeps `count` (rows ever stored).
+
+    With a ``writer`` (a tipbot_fw.logcontainer.LogWriter), the rows go to the file in chunks:
+    flush() writes the rows not yet written (at most ``max_rows`` in all: the rest are counted,
+    not recorded), so the ring needs only a few chunks; without one the ring keeps the newest
+    ``capacity`` rows (bench, tests).
     """
 
-    def __init__(self, capacity):
+    def __init__(self, capacity, writer=None, polarity=(1, 1, 1, 1), max_rows=None, chunk_rows=CHUNK_ROWS):
         self.capacity = int(capacity)
         self.data = bytearray(self.capacity * MEM_ROW_BYTES)
         self.mem = np.frombuffer(self.data, dtype='<f8').reshape(self.capacity, MEM_COLUMNS)
         self.count = 0
         self.t0 = 0.0       # the clock at the start of the first tick (set by the loop)
+        self.writer = writer
+        self.polarity = polarity
+        self.max_rows = max_rows
+        self.chunk_rows = chunk_rows
+        self.flushed = 0    # rows sent to the writer (or dropped beyond max_rows)
+        self.first_info = None  # () -> dict for an INFO record before the first rows (the zeros)
+
+    @classmethod
+    def for_file(cls, writer, polarity, max_rows, chunk_rows=CHUNK_ROWS):
+        return cls(chunk_rows * RING_CHUNKS, writer, polarity, max_rows, chunk_rows)
+
+    def flush(self, end=None):
+        """Write the rows stored (``end`` of them: the loop's count during a run; else count) and
+        not yet written, outside the ticks. Never raises."""
+        end = self.count if end is None else end
+        start = max(self.flushed, end - self.capacity)
+        if self.writer is None or end <= start:
+            return
+        stop = end if self.max_rows is None else min(end, self.max_rows)
+        if self.first_info is not None:
+            info = self.first_info()
+            info['log_t0'] = self.t0
+            self.writer.info(info)
+            self.first_info = None
+        if stop > start:
+            self.writer.rows_bytes(*self._block(start, stop))
+        self.flushed = end
+
+    def _block(self, start, stop):
+        """The rows start..stop as the file stores them: the memory layout's bytes as they are
+        (no conversion on the brick: read_log derives the file layout)."""
+        p, q = (start % self.capacity) * MEM_ROW_BYTES, (stop - start) * MEM_ROW_BYTES
+        end = p + q
+        if end <= len(self.data):
+            return self.data[p:end], stop - start
+        return self.data[p:] + self.data[:end - len(self.data)], stop - start
+
+    def not_recorded(self):
+        """Rows stored but beyond max_rows (not in the file)."""
+        return 0 if self.max_rows is None else max(0, self.count - self.max_rows)
 
     def first_tick(self):
         """Index of the tick of the oldest row kept."""
@@ -160,87 +211,35 @@ def columns_header(columns=COLUMNS):
     return [{'name': n, 'unit': u} for n, u in columns]
 
 
-class LogFormatError(ValueError):
-    """The file is not a complete, intact tipbot log; the message says what is wrong."""
+# What a run's log file stores: the memory rows (MEM_NAMES), converted to COLUMNS when read.
+STORED_LAYOUT = 'memory'
+STORED_COLUMNS = [(n, '') for n in MEM_NAMES]
 
 
-def write_log(path, header, rows, nrows=None, columns=COLUMNS):
-    """Write header (a JSON-able dict; 'columns' is added) and rows to path.
-
-    columns: (name, unit) pairs; another list than the run log's COLUMNS makes another kind
-    of log in the same container (tipbot_fw.identify), which the header must say.
-
-    rows: an n x N_COLUMNS array; or, with nrows, an iterable of such blocks with nrows rows in
-    all (LogBuffer.file_blocks: on the brick a full ring is then written with little memory
-    beyond the buffer itself). Written to path + '.tmp' and renamed, so a reader never sees a
-    half-written log.
-    """
-    if nrows is None:
-        rows = np.asarray(rows)
-        if rows.ndim != 2 or rows.shape[1] != len(columns):
-            raise ValueError('log rows must be n x {}, got shape {}'.format(len(columns), rows.shape))
-        nrows = rows.shape[0]
-        blocks = [rows]
-    else:
-        blocks = rows
-    header = dict(header)
-    header['columns'] = columns_header(columns)
-    header['format_version'] = FORMAT_VERSION
-    text = json.dumps(header, sort_keys=True).encode('utf-8')
-    counts = _COUNTS.pack(FORMAT_VERSION, len(text), len(columns), nrows)
-    crc = zlib.crc32(text, zlib.crc32(counts))
-    written = 0
-    tmp = path + '.tmp'
-    with open(tmp, 'wb') as f:
-        f.write(MAGIC)
-        f.write(counts)
-        f.write(text)
-        for block in blocks:
-            body = np.ascontiguousarray(block, dtype='<f8')
-            if body.size:
-                data = memoryview(body).cast('B')
-                crc = zlib.crc32(data, crc)
-                f.write(data)
-            written += len(body)
-        f.write(_CRC.pack(crc & 0xffffffff))
-        f.flush()
-        os.fsync(f.fileno())
-    if written != nrows:
-        raise ValueError('log rows: {} written, {} announced'.format(written, nrows))
-    os.rename(tmp, path)
+def open_run_log(path, reserve_rows):
+    """A LogWriter for a run log: its rows are memory rows (LogBuffer.flush)."""
+    return LogWriter(path, STORED_COLUMNS, reserve_rows, layout=STORED_LAYOUT)
 
 
 def read_log(path):
-    """-> (header dict, rows as an n x ncols float64 array). LogFormatError if not intact."""
-    with open(path, 'rb') as f:
-        data = f.read()
-    pre = len(MAGIC) + _COUNTS.size
-    if not data.startswith(MAGIC) and not MAGIC.startswith(data):
-        raise LogFormatError('{}: not a tipbot log (bad magic bytes)'.format(path))
-    if len(data) < pre:
-        raise LogFormatError('{}: truncated: {} bytes, shorter than the fixed preamble'.format(path, len(data)))
-    version, header_len, ncols, nrows = _COUNTS.unpack_from(data, len(MAGIC))
-    if version != FORMAT_VERSION:
-        raise LogFormatError('{}: log format version {} is not supported (this reader: {})'.format(
-            path, version, FORMAT_VERSION))
-    body_start = pre + header_len
-    body_len = nrows * ncols * 8
-    expected = body_start + body_len + _CRC.size
-    if len(data) < expected:
-        raise LogFormatError('{}: truncated: {} bytes, expected {} ({} rows of {} columns)'.format(
-            path, len(data), expected, nrows, ncols))
-    if len(data) > expected:
-        raise LogFormatError('{}: {} unexpected bytes after the end of the log'.format(path, len(data) - expected))
-    (crc,) = _CRC.unpack_from(data, expected - _CRC.size)
-    actual = zlib.crc32(memoryview(data)[len(MAGIC):expected - _CRC.size]) & 0xffffffff
-    if crc != actual:
-        raise LogFormatError('{}: corrupted: CRC32 is {:08x}, expected {:08x}'.format(path, actual, crc))
-    try:
-        header = json.loads(data[pre:body_start].decode('utf-8'))
-    except (ValueError, UnicodeError) as e:
-        raise LogFormatError('{}: header is not valid JSON: {}'.format(path, e))
-    if len(header.get('columns', ())) != ncols:
-        raise LogFormatError('{}: header lists {} columns, body has {}'.format(
-            path, len(header.get('columns', ())), ncols))
-    rows = np.frombuffer(data, dtype='<f8', count=nrows * ncols, offset=body_start)
-    return header, rows.reshape(nrows, ncols).astype(float)
+    """-> (header, rows in the file layout COLUMNS). A run log whose file stores memory rows
+    (format 2) is converted here with its own configuration's polarities and its log_t0, so
+    every reader sees the columns of docs/log-format.md. LogFormatError as logcontainer.read_log."""
+    header, rows = logcontainer.read_log(path)
+    names = [c.get('name') if isinstance(c, dict) else c for c in header['columns']]
+    if header.get('layout') == STORED_LAYOUT and names == MEM_NAMES:
+        try:
+            pol = [header['config']['polarity'][r] for r in ('right_wheel', 'left_wheel', 'joint2', 'joint3')]
+            t0 = float(header.get('log_t0', rows[0, 0] if len(rows) else 0.0))
+        except (KeyError, TypeError, ValueError) as e:
+            raise LogFormatError('{}: a log of memory rows without its polarities or start time: {!r}'.format(path, e))
+        rows = to_file_layout(rows, pol, t0)
+        header['stored_columns'] = header['columns']
+        header['columns'] = columns_header(COLUMNS)
+    return header, rows
+
+
+def write_log(path, header, rows, nrows=None, columns=COLUMNS):
+    """Write a whole log at once (tests, the identify log): header, then rows (an n x ncols array,
+    or with nrows an iterable of such blocks), in the container of tipbot_fw.logcontainer."""
+    logcontainer.write_log(path, header, rows, columns)

@@ -1,15 +1,30 @@
 """The fixed-period control loop: timing, the tick pipeline, housekeeping, overrun policy.
 
-Tick pipeline: read raw -> Core (signal chain, detector, control, saturation, duty, log row) ->
-write duties -> the row's time columns. Housekeeping (the battery, about once per second) runs in the slack AFTER the
-tick's writes, so a control tick does exactly one read_raw (5 sysfs reads) and one
-write_duties (at most 4 writes).
+Tick pipeline: read raw -> plausibility of the readings -> heartbeat -> Core (signal chain,
+detector, control, saturation, duty, log row) -> write duties -> the row's time columns. A
+control tick does exactly one read_raw (5 sysfs reads) and one write_duties (at most 4 writes).
 
 Timing: tick k is released at t0 + k * period, the deadline advanced by exactly one period each
 tick (no drift). A tick whose work ends after the next release is an overrun: the next tick
 starts at once; releases missed entirely are skipped (whole periods, the grid is kept) and
 counted. limits.max_consecutive_overruns overruns in a row stop the run. The signal chain and
 the detector always assume the nominal period (the model is discrete at ts_s).
+
+Each tick stores its index in the heartbeat page the supervisor watches (one store, no system
+call: tipbot_fw.heartbeat), and compares the readings with what the hardware can report
+(tipbot_fw.plausibility: a gyro rate beyond +-440 deg/s, an encoder jump beyond the motor's
+reach at the nominal period; only when that cheap test fails is the exact one, with the time
+since the previous read, made).
+
+Between ticks, after the tick's writes and its overrun bookkeeping, in this order: the log's
+rows, written to the file in chunks (logfile.CHUNK_ROWS; no fsync in the loop); the battery
+(about once a second: its plausibility, and whether the supervisor is still there); the side
+task (tipbot_fw.slack: lights, tones, telemetry). Each runs in the first tick, from the one it
+is due in, that leaves at least SLACK_S (SLACK_FRACTION of a shorter period) before the next
+release, so that none of them makes a tick late. What cannot wait any longer runs at once: the
+rows when the ring in memory is about to be overwritten, the battery when it is a whole battery
+period late. The side task is never forced: a datagram or a note comes later, or fewer of them
+come. Until the next tick with work due, a tick pays one integer comparison for all of it.
 
 Motors are not stopped here: the caller (tipbot_fw.session) stops them in its finally clause.
 """
@@ -18,9 +33,23 @@ import os
 
 from tipbot_fw import logfile
 from tipbot_fw.core import FALL
-from tipbot_fw.safety import DeviceFailure, FallDetected, JointLimit, OverrunLimit
+from tipbot_fw.heartbeat import NOT_SUPERVISED
+from tipbot_fw.plausibility import GYRO_MAX_DPS, EncoderBound, check_battery
+from tipbot_fw.safety import DeviceFailure, FallDetected, JointLimit, OverrunLimit, Terminated
+
+# What a tick must leave before the next release for the work between ticks (a chunk of log rows
+# is a copy, a CRC-32 and a pwrite; the battery one sysfs read, 0.3-0.45 ms on the brick), or
+# SLACK_FRACTION of a period shorter than 5 ms (a 1 ms period still has its side tasks).
+SLACK_S = 0.0015
+SLACK_FRACTION = 0.3
 
 OVERRUN = logfile.FLAG_BITS['overrun']
+
+
+def _NEVER(k):
+    """The side task of a loop without one: due again 2**29 ticks later (31 days at 5 ms), a
+    tick number of one CPython digit (below 2**30), which compares fastest."""
+    return k + (1 << 29)
 
 
 class LoopStats(object):
@@ -65,11 +94,14 @@ class ControlLoop(object):
 
     battery_v: the voltage read before start (re-read every battery_period_s); duration_s:
     stop after that many periods' worth of ticks (None: run until stopped); realtime_priority:
-    SCHED_FIFO priority to ask for during the run (0: don't).
+    SCHED_FIFO priority to ask for during the run (0: don't); heartbeat: the supervisor's page
+    (tipbot_fw.heartbeat); encoder_bound: a plausibility.EncoderBound (None: only the gyro's
+    bound is checked); side: a side task (tipbot_fw.slack) or None, settable until run().
     """
 
     def __init__(self, devices, core, clock, log, period_s, battery_v, battery_period_s=1.0,
-                 max_consecutive_overruns=5, duration_s=None, realtime_priority=0):
+                 max_consecutive_overruns=5, duration_s=None, realtime_priority=0, heartbeat=NOT_SUPERVISED,
+                 encoder_bound=None, side=None):
         self.devices = devices
         self.core = core
         self.clock = clock
@@ -80,6 +112,9 @@ class ControlLoop(object):
         self.max_consecutive_overruns = max_consecutive_overruns
         self.n_ticks = None if duration_s is None else max(1, int(round(duration_s / period_s)))
         self.realtime_priority = realtime_priority
+        self.heartbeat = heartbeat
+        self.encoder_bound = encoder_bound
+        self.side = side
         self.stats = LoopStats()
 
     def run(self):
@@ -89,6 +124,10 @@ class ControlLoop(object):
         gc_was_enabled = gc.isenabled()
         gc.collect()
         gc.disable()   # no collector pause inside a tick; the ticks create no reference cycles
+        # Watched from the first tick on: the set-up since the calibration's last beat (the core,
+        # the start cue, that gc.collect: about 8 million ARMv5 instructions, 30-60 ms on the
+        # brick) is longer than the supervisor's stall timeout, and no motor has been driven yet.
+        self.heartbeat.arm()
         try:
             self._run(stats)
         finally:
@@ -123,7 +162,26 @@ class ControlLoop(object):
         n_ticks = self.n_ticks
         battery_every = self.battery_every
         max_overruns = self.max_consecutive_overruns
-        stats.battery_v = self.battery_v
+        hbt = self.heartbeat
+        beat = hbt.words if hbt.words is not None else [0] * 8   # the same store either way
+        bound = self.encoder_bound or EncoderBound(None, None, period)
+        j2_tick = bound.per_tick ** 2
+        j2_max = float('inf')           # tick 0 has no previous reading
+        gyro_max = GYRO_MAX_DPS
+        pa = pb = pc = pd = 0
+        # the work between ticks: the tick each part is next due in, and the first tick with any
+        flush = log.flush
+        chunk = log.chunk_rows
+        next_flush = chunk
+        urgent = log.capacity - chunk
+        next_battery = battery_every
+        side = self.side
+        side_due = 1
+        if side is None:
+            side, side_due = _NEVER, _NEVER(0)
+        due = min(next_flush, next_battery, side_due)
+        min_slack = min(SLACK_S, SLACK_FRACTION * period)
+        stats.battery_v = check_battery(self.battery_v)
         core.set_battery(self.battery_v)
         consecutive = 0
         step = core.start
@@ -136,9 +194,18 @@ class ControlLoop(object):
                     enc, gyro = read()
                 except (OSError, ValueError) as e:
                     raise DeviceFailure('read_raw failed at tick {}: {}'.format(k, e))
+                # the four jumps' squares against the bound's: a third cheaper than four chained
+                # comparisons; it errs only towards the exact check (bound.check)
+                a, b, c, d = enc
+                a2, b2, c2, d2 = a - pa, b - pb, c - pc, d - pd
+                if not (-gyro_max <= gyro[1] <= gyro_max and a2 * a2 + b2 * b2 + c2 * c2 + d2 * d2 <= j2_max):
+                    bound.check((pa, pb, pc, pd), enc, t - log.mem[(k - 1) % cap, 0], gyro[1], k)
+                pa, pb, pc, pd = a, b, c, d
+                beat[0] = k
                 offset = (k % cap) * row_bytes
                 duties, stop = step(enc, gyro, buf, offset)
                 step = core.step
+                j2_max = j2_tick
                 if stop:
                     pack_times(buf, offset, t, now())
                     k += 1
@@ -151,15 +218,6 @@ class ControlLoop(object):
                 k += 1
                 if k == n_ticks:
                     return
-                if k % battery_every == 0:
-                    try:
-                        bv = dev.read_battery_v()
-                    except (OSError, ValueError) as e:
-                        raise DeviceFailure('battery read failed after tick {}: {}'.format(k - 1, e))
-                    stats.battery_reads += 1
-                    stats.battery_v = bv
-                    if bv != core.battery_v:
-                        core.set_battery(bv)
                 release += period
                 late = now() - release
                 if late > 0.0:
@@ -177,6 +235,29 @@ class ControlLoop(object):
                         stats.skipped_periods += missed
                 else:
                     consecutive = 0
+                if k >= due:        # work between ticks: one comparison a tick until some is due
+                    if k >= next_flush and (release - now() > min_slack or k - log.flushed >= urgent):
+                        flush(k)
+                        next_flush = k + chunk
+                    if k >= next_battery and (release - now() > min_slack or k - next_battery >= battery_every):
+                        try:
+                            bv = dev.read_battery_v()
+                        except (OSError, ValueError) as e:
+                            raise DeviceFailure('battery read failed after tick {}: {}'.format(k - 1, e))
+                        check_battery(bv, stats.battery_v, 'after tick {}'.format(k - 1))
+                        stats.battery_reads += 1
+                        stats.battery_v = bv
+                        if bv != core.battery_v:
+                            core.set_battery(bv)
+                        if not hbt.supervisor_alive():
+                            raise Terminated('the supervisor (pid {}) is gone: the controller stopped the motors '
+                                             'itself'.format(hbt.supervisor_pid), 'supervisor_gone')
+                        next_battery = k - k % battery_every + battery_every     # on the grid
+                    if k >= side_due and release - now() > min_slack:
+                        side_due = side(k)
+                    due = next_flush if next_flush < next_battery else next_battery
+                    if side_due < due:
+                        due = side_due
                 sleep_until(release)   # returns at once when late
         finally:
             log.count = stats.ticks = k

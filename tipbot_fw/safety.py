@@ -3,16 +3,23 @@
 Exit codes of `python3 -m tipbot_fw` (also in README/cli help):
   0   run reached --duration (or check/calibrate succeeded)
   1   unexpected error (a bug): motors stopped, log written, traceback printed
-  2   invalid command line, config or gains: refused to start, devices not opened, no log
+  2   invalid command line, config or gains, or a log path that cannot be written (or no room
+      for the log): refused to start, devices not opened, no log (the message says why)
   3   devices missing or with the wrong driver: refused to start, motors untouched, (run) a
       log of the header only, naming them
   4   refused to start: battery below limits.min_battery_v, the gyro moved during calibration,
       or (identify) the owner did not confirm that the motor is free to turn
-  5   a device read or write failed during the run
+  5   a device read or write failed during the run, or a reading no hardware can give (a gyro
+      rate beyond +-440 deg/s, an encoder jump faster than any motor turns, a battery voltage
+      outside what an EV3 can run on or jumping implausibly)
   6   fall (|th1| beyond limits.th1_rad) or a joint beyond its limit: stopped in that tick
   7   limits.max_consecutive_overruns late ticks in a row
+  8   the controller stalled: its supervisor saw no heartbeat, stopped the motors and stopped it
+  9   (supervisor) the controller died without exiting (SIGKILL, a crash, out of memory): the
+      supervisor stopped the motors; the log keeps the rows written before
   130 interrupted (Ctrl-C, SIGINT)
-  143 terminated (SIGTERM)
+  143 terminated by a signal (SIGTERM, SIGHUP, SIGQUIT, SIGUSR1, ...: the log names it), or
+      the supervisor died and the controller stopped its motors itself
 """
 import signal
 import traceback
@@ -25,6 +32,8 @@ EXIT_REFUSED = 4
 EXIT_DEVICE_FAILURE = 5
 EXIT_LIMIT = 6
 EXIT_OVERRUN = 7
+EXIT_WATCHDOG = 8
+EXIT_CONTROLLER_DIED = 9
 EXIT_INTERRUPT = 130
 EXIT_TERMINATED = 143
 
@@ -70,11 +79,54 @@ class DevicesMissing(SafetyStop):
     exit_code = EXIT_DEVICES
 
 
+class ImplausibleBattery(SafetyStop):
+    """A battery reading outside what an EV3 runs on, or a jump no battery makes."""
+    reason = 'battery_implausible'
+    exit_code = EXIT_DEVICE_FAILURE
+
+
 class Terminated(BaseException):
-    """Raised by the SIGTERM handler. A BaseException, like KeyboardInterrupt, so that no
-    `except Exception` on the way can swallow it."""
-    reason = 'sigterm'
-    exit_code = EXIT_TERMINATED
+    """Raised by the signal handlers (SignalGuard). A BaseException, like KeyboardInterrupt, so
+    that no `except Exception` on the way can swallow it. reason: 'sigterm' (SIGTERM, SIGHUP),
+    'signal' (any other termination signal), 'watchdog' (the supervisor saw a stall and stopped
+    the motors), 'supervisor_gone' (the supervisor died)."""
+
+    def __init__(self, message, reason='sigterm', exit_code=EXIT_TERMINATED):
+        BaseException.__init__(self, message)
+        self.reason = reason
+        self.exit_code = exit_code
+
+
+# Signals whose default action ends the process, that a handler can catch. Not here: SIGKILL
+# and SIGSTOP (uncatchable: the supervisor covers them), SIGSEGV, SIGBUS, SIGILL, SIGFPE, SIGABRT,
+# SIGTRAP, SIGSYS (a fault inside the interpreter: a Python handler cannot run; the process ends
+# and the supervisor stops the motors), SIGPIPE and SIGXFSZ (Python ignores them: a write then
+# fails with EPIPE or EFBIG, which every writer handles).
+_TERMINATION_NAMES = ('SIGHUP', 'SIGINT', 'SIGQUIT', 'SIGTERM', 'SIGUSR1', 'SIGUSR2', 'SIGALRM',
+                      'SIGXCPU', 'SIGVTALRM', 'SIGPROF', 'SIGIO', 'SIGPWR', 'SIGSTKFLT')
+
+
+def termination_signals():
+    """The catchable termination signals of this platform (with the real-time ones)."""
+    out = []
+    for name in _TERMINATION_NAMES:
+        s = getattr(signal, name, None)
+        if s is not None and int(s) not in out:
+            out.append(int(s))
+    lo, hi = getattr(signal, 'SIGRTMIN', None), getattr(signal, 'SIGRTMAX', None)
+    if lo is not None and hi is not None:
+        out += [s for s in range(int(lo), int(hi) + 1) if s not in out]
+    return out
+
+
+def signal_name(signum):
+    for name in _TERMINATION_NAMES:
+        if getattr(signal, name, None) == signum:
+            return name
+    lo = getattr(signal, 'SIGRTMIN', None)
+    if lo is not None and signum >= lo:
+        return 'SIGRTMIN+{}'.format(signum - lo)
+    return 'signal {}'.format(signum)
 
 
 def classify(exc):
@@ -98,65 +150,105 @@ def outcome(error):
 
 
 class SignalGuard(object):
-    """SIGTERM and SIGHUP -> Terminated, SIGINT -> KeyboardInterrupt, each raised at most ONCE.
+    """Every catchable termination signal -> an exception, raised at most ONCE: SIGINT ->
+    KeyboardInterrupt, the others -> Terminated (the message names the signal).
 
-    SIGHUP: a run started over ssh gets it when the connection drops; its default action
-    would kill the process with the motors still running at their last duty.
+    SIGHUP: a run started over ssh gets it when the connection drops; SIGQUIT is Ctrl-\\ on the
+    terminal; their default actions would kill the process with the motors still running.
+
+    ``heartbeat`` (tipbot_fw.heartbeat) tells a SIGTERM from the supervisor after a stall
+    ('watchdog') and the parent-death signal of a dead supervisor ('supervisor_gone') from an
+    owner's SIGTERM.
 
     After the first signal (or disarm()), further signals are only counted: a second Ctrl-C
     cannot interrupt the motor stop and log write that the first one started.
     """
 
-    def __init__(self):
+    def __init__(self, heartbeat=None):
         self.armed = False
+        self.installed = False
         self.ignored = 0
+        self.heartbeat = heartbeat
         self._previous = {}
+
+    def exception(self, signum):
+        """The exception that stands for signum."""
+        hbt = self.heartbeat
+        if hbt is not None and hbt.stopped_by_supervisor() is not None:
+            return Terminated('the supervisor saw no heartbeat for {:.0f} ms (the controller stalled) and '
+                              'stopped the motors'.format(1e3 * hbt.stopped_by_supervisor()),
+                              'watchdog', EXIT_WATCHDOG)
+        if hbt is not None and not hbt.supervisor_alive():
+            return Terminated('the supervisor (pid {}) died: the controller stopped the motors itself'.format(
+                hbt.supervisor_pid), 'supervisor_gone')
+        if signum == signal.SIGINT:
+            return KeyboardInterrupt()
+        if signum == getattr(signal, 'SIGHUP', None):
+            return Terminated('terminated by SIGHUP (the terminal or ssh connection went away)')
+        if signum == signal.SIGTERM:
+            return Terminated('terminated by SIGTERM')
+        return Terminated('terminated by {}'.format(signal_name(signum)), 'signal')
 
     def _handler(self, signum, frame):
         if not self.armed:
             self.ignored += 1
             return
         self.armed = False
-        if signum == signal.SIGTERM:
-            raise Terminated('terminated by SIGTERM')
-        if signum == getattr(signal, 'SIGHUP', None):
-            raise Terminated('terminated by SIGHUP (the terminal or ssh connection went away)')
-        raise KeyboardInterrupt()
+        raise self.exception(signum)
 
     def install(self):
         try:
-            for sig in (signal.SIGTERM, signal.SIGINT, getattr(signal, 'SIGHUP', None)):
-                if sig is not None:
-                    self._previous[sig] = signal.signal(sig, self._handler)
-        except ValueError:
-            pass    # not the main thread: Python delivers signals only there anyway
+            for sig in termination_signals():
+                self._previous[sig] = signal.signal(sig, self._handler)
+        except (ValueError, OSError):
+            pass    # not the main thread (Python delivers signals only there anyway), or not settable
+        self.installed = True
         self.armed = True
         return self
+
+    def check_pending(self):
+        """Raise for a signal the supervisor received (and passed on) before install()."""
+        signum = self.heartbeat.requested_signal() if self.heartbeat is not None else 0
+        if signum and self.armed:
+            self.armed = False
+            raise self.exception(signum)
+
+    def arm(self):
+        self.armed = True
 
     def disarm(self):
         self.armed = False
 
     def restore(self):
         self.armed = False
+        self.installed = False
         for sig, handler in self._previous.items():
-            signal.signal(sig, signal.SIG_DFL if handler is None else handler)
+            try:
+                signal.signal(sig, signal.SIG_DFL if handler is None else handler)
+            except (ValueError, OSError):
+                pass
         self._previous = {}
 
 
-def run_guarded(body, stop_motors, finish, say):
+def run_guarded(body, stop_motors, finish, say, guard=None):
     """The shutdown skeleton of everything that drives motors (tipbot_fw.session, tipbot_fw.identify).
 
-    body() runs with SIGTERM, SIGHUP and SIGINT turned into exceptions (SignalGuard). Whatever
-    ends it (completion, a planned stop, a signal, a bug), stop_motors() runs first: it returns
-    the failures as strings, each of which is said, and must not raise (if it does, that is said
-    too). Then finish(reason, exit code, message) runs with further signals only counted, so a
-    second Ctrl-C cannot cut the log short; its result is returned. Never raises unless finish does.
+    body() runs with the termination signals turned into exceptions (SignalGuard: ``guard``, the
+    one the command line installed before touching any device, or a new one installed here and
+    removed at the end). Whatever ends it (completion, a planned stop, a signal, a bug),
+    stop_motors() runs first: it returns the failures as strings, each of which is said, and must
+    not raise (if it does, that is said too). Then finish(reason, exit code, message) runs with
+    further signals only counted, so a second Ctrl-C cannot cut the log short; its result is
+    returned. Never raises unless finish does.
     """
     error = None
-    guard = SignalGuard()
+    guard = SignalGuard() if guard is None else guard
+    own = not guard.installed
     try:
         try:
-            guard.install()
+            if own:
+                guard.install()
+            guard.arm()
             body()
         except BaseException as e:
             error = e
@@ -172,4 +264,5 @@ def run_guarded(body, stop_motors, finish, say):
     try:
         return finish(*outcome(error))
     finally:
-        guard.restore()
+        if own:
+            guard.restore()

@@ -1,7 +1,10 @@
 """One balancing run: battery check, gyro calibration, the loop, and the guaranteed shutdown.
 
-Whatever ends the run (duration reached, fall, SIGTERM, Ctrl-C, device failure, overruns, a bug)
-the motors are stopped first, then the log is written, then the reason is reported.
+Whatever ends the run (duration reached, fall, a signal, device failure, overruns, a stall seen
+by the supervisor, a bug) the motors are stopped first, then the log is finished, then the
+reason is reported. The log is open before the devices are touched, and its rows reach the
+file while the robot runs (tipbot_fw.logfile): its header at the start, the calibration and the
+encoder zeros as they are learnt, the rows in chunks, the end of the run last.
 """
 import sys
 import time
@@ -9,13 +12,15 @@ import time
 import numpy as np
 
 import tipbot_fw
-from tipbot_fw import logfile
+from tipbot_fw import logfile, slack
 from tipbot_fw.calibration import calibrate_gyro
 from tipbot_fw.config import motor_polarity
 from tipbot_fw.core import Core
 from tipbot_fw.cues import OwnerCues
+from tipbot_fw.heartbeat import NOT_SUPERVISED
 from tipbot_fw.loop import ControlLoop
 from tipbot_fw.console import say
+from tipbot_fw.plausibility import EncoderBound, check_battery
 from tipbot_fw.safety import EXIT_ERROR, EXIT_OK, DeviceFailure, LowBattery, outcome, run_guarded
 
 
@@ -38,22 +43,62 @@ def base_header(gains, config, duration_s):
     }
 
 
+def open_log(log_path, config, ts_s, duration_s):
+    """The run's LogWriter, with room reserved for its rows; LogWriteError (the path, a full
+    disk) before anything runs."""
+    return logfile.open_run_log(log_path, _log_rows(config, ts_s, duration_s))
+
+
+class BeatingClock(object):
+    """A clock whose sleeps beat the heartbeat: the calibration's samples keep the supervisor's
+    watch alive before the control loop beats it every tick."""
+
+    def __init__(self, clock, heartbeat):
+        self.clock, self.heartbeat, self.now, self.k = clock, heartbeat, clock.now, 0
+
+    def sleep_until(self, t):
+        self.k += 1
+        self.heartbeat.beat(self.k)
+        self.clock.sleep_until(t)
+
+
 def run_session(devices, gains, config, clock, log_path=None, duration_s=None,
-                realtime_priority=None, say=say, cues=None):
+                realtime_priority=None, say=say, cues=None, log=None, heartbeat=NOT_SUPERVISED, guard=None,
+                telemetry=None):
     """Balance until duration_s (None: until stopped). -> (exit code, log header dict).
 
     Never raises; devices.stop_all() is called on every exit (tipbot_fw.safety.run_guarded).
-    The log (if log_path) is written on every exit too, with the rows recorded so far.
-    ``cues`` (tipbot_fw.cues.OwnerCues by default) tells the owner to hold the robot, then
-    to let go.
+    The log: ``log``, a LogWriter the caller opened (the command line opens it before the
+    devices), or one opened here at log_path; None of either: no log. ``cues``
+    (tipbot_fw.cues.OwnerCues by default) tells the owner to hold the robot, to let go, that it
+    balances and why it stopped; ``telemetry`` (a tipbot_fw.telemetry.TelemetrySender or None)
+    sends the ticks' rows. Both work in the loop's slack (tipbot_fw.slack). ``heartbeat``: the
+    supervisor's page, armed during the calibration and from the loop's first tick until the
+    motors are stopped. ``guard``: the SignalGuard already installed (tipbot_fw.cli), or None.
     """
     cues = OwnerCues() if cues is None else cues
     if realtime_priority is None:
         realtime_priority = config['realtime_priority']
     header = base_header(gains, config, duration_s)
     header['counts_per_rot'] = list(devices.counts_per_rot)
-    log = logfile.LogBuffer(_log_rows(config, gains.ts_s, duration_s))
+    header['supervised'] = heartbeat.supervised
+    header['first_tick'] = 0     # a file holds a run's rows from its first tick (logfile.LogBuffer)
+    if log is None and log_path:
+        try:
+            log = open_log(log_path, config, gains.ts_s, duration_s)
+        except logfile.LogWriteError as e:
+            say('no log: {}'.format(e.strerror))
+    if log is not None:
+        log.header(header)
+    polarity = motor_polarity(config)
+    rows = logfile.LogBuffer.for_file(log, polarity, config['log_max_rows']) if log is not None else \
+        logfile.LogBuffer(_log_rows(config, gains.ts_s, duration_s), polarity=polarity)
     run = {}    # what body() got to build: the core and the loop
+
+    def learnt(doc):
+        header.update(doc)
+        if log is not None:
+            log.info(doc)
 
     def body():
         lim = config['limits']
@@ -61,60 +106,84 @@ def run_session(devices, gains, config, clock, log_path=None, duration_s=None,
             bv = devices.read_battery_v()
         except (OSError, ValueError) as e:
             raise DeviceFailure('battery read failed: {}'.format(e))
-        header['battery_v_start'] = bv
+        learnt({'battery_v_start': bv})
+        check_battery(bv)
         if bv < lim['min_battery_v']:
             raise LowBattery('battery at {:.2f} V is below limits.min_battery_v = {} V: charge it'.format(
                 bv, lim['min_battery_v']))
         cal_config = config['gyro_calibration']
         cues.hold_still(cal_config['settle_s'] + cal_config['duration_s'])
-        cal = calibrate_gyro(devices, clock, gains.ts_s, cal_config)
-        header['calibration'] = cal.as_dict()
-        run['core'] = Core(gains, config, cal.gyro_bias_dps, devices.counts_per_rot)
-        run['loop'] = ControlLoop(devices, run['core'], clock, log, gains.ts_s, bv,
+        heartbeat.arm()
+        cal = calibrate_gyro(devices, BeatingClock(clock, heartbeat), gains.ts_s, cal_config)
+        heartbeat.disarm()      # until the loop's first tick (ControlLoop.run): no motor driven yet
+        learnt({'calibration': cal.as_dict()})
+        core = run['core'] = Core(gains, config, cal.gyro_bias_dps, devices.counts_per_rot)
+        rows.first_info = lambda: {'encoder_offsets': list(core.chain.offsets), 'x_tilde_0': core.x0}
+        run['loop'] = ControlLoop(devices, core, clock, rows, gains.ts_s, bv,
                                   battery_period_s=config['battery_period_s'],
                                   max_consecutive_overruns=lim['max_consecutive_overruns'],
-                                  duration_s=duration_s, realtime_priority=realtime_priority)
+                                  duration_s=duration_s, realtime_priority=realtime_priority,
+                                  heartbeat=heartbeat,
+                                  encoder_bound=EncoderBound(config, devices.counts_per_rot, gains.ts_s))
         cues.let_go()
+        run['loop'].side = slack.combine(   # after let_go: the rest of its melody plays in the loop
+            cues.in_loop(run['loop'], lim['warn_battery_v']),
+            telemetry.attach(rows, run['loop'].stats, polarity) if telemetry else None)
         run['loop'].run()
 
+    def stop_motors():
+        failures = devices.stop_all()
+        heartbeat.disarm()
+        return failures
+
     def finish(reason, code, msg):
-        header['stop_reason'] = reason
-        header['stop_message'] = msg
-        header['exit_code'] = code
-        header['stop_wall_time_s'] = time.time()
+        end = {'stop_reason': reason, 'stop_message': msg, 'exit_code': code, 'stop_wall_time_s': time.time()}
         core = run.get('core')
         if core is not None and core.x0 is not None:
-            header['encoder_offsets'] = list(core.chain.offsets)
-            header['x_tilde_0'] = core.x0
+            end['encoder_offsets'] = list(core.chain.offsets)
+            end['x_tilde_0'] = core.x0
         if 'loop' in run:
-            header['loop'] = run['loop'].stats.as_dict()
-        header['first_tick'] = log.first_tick()
-        header['ticks'] = log.count
-        if log_path:
-            try:
-                logfile.write_log(log_path, header, log.file_blocks(motor_polarity(config)), log.kept())
-            except Exception as e:   # the motors are stopped: report, never raise
-                say('could not write the log {}: {!r}'.format(log_path, e))
+            end['loop'] = run['loop'].stats.as_dict()
+        if telemetry is not None:
+            end['telemetry'] = telemetry.summary()
+        rows.flush()
+        end['first_tick'] = rows.first_tick() if log is None else 0
+        end['ticks'] = rows.count
+        end['rows_not_recorded'] = rows.not_recorded()
+        header.update(end)
+        note = ''
+        if log is not None:
+            problem = log.close(end)
+            if problem:
+                say('log {}: {}; the file keeps what was written before (it reads back, marked incomplete)'.format(
+                    log.path, problem))
                 if code == EXIT_OK:
                     code = header['exit_code'] = EXIT_ERROR
-        say('stopped: {} (exit {}, {} ticks)'.format(msg, code, log.count))
+            note = '; log {}'.format(log.path)
+            if rows.not_recorded():
+                note += ' (the first {} ticks: limits log_max_rows)'.format(config['log_max_rows'])
+        say('stopped: {} (exit {}, {} ticks){}'.format(msg, code, rows.count, note))
+        try:
+            cues.stopped(reason, code)    # after the log: its light and tone take up to a second
+        except Exception as e:            # the motors are stopped, the log written: report, never raise
+            say('could not show why it stopped: {!r}'.format(e))
         return code, header
 
-    return run_guarded(body, devices.stop_all, finish, say)
+    return run_guarded(body, stop_motors, finish, say, guard)
 
 
-def log_refused_start(log_path, gains, config, duration_s, error, say=say):
-    """The log of a run refused before any device was set up (error: a SafetyStop): the
-    header only, with why. Never raises."""
+def log_refused_start(log, gains, config, duration_s, error, say=say):
+    """The log of a run refused before any device was set up (error: a SafetyStop or a signal):
+    the header and how it ended, in ``log`` (an open LogWriter). Never raises."""
     header = base_header(gains, config, duration_s)
     header['stop_reason'], header['exit_code'], header['stop_message'] = outcome(error)
-    header['stop_wall_time_s'] = time.time()
-    header['first_tick'] = header['ticks'] = 0
-    try:
-        logfile.write_log(log_path, header, np.zeros((0, logfile.N_COLUMNS)))
-        say('stopped: {} (exit {}, no ticks); log {}'.format(header['stop_message'], header['exit_code'], log_path))
-    except Exception as e:     # nothing runs: report, never raise
-        say('could not write the log {}: {!r}'.format(log_path, e))
+    log.header(header)
+    problem = log.close({'stop_wall_time_s': time.time(), 'first_tick': 0, 'ticks': 0})
+    if problem:
+        say('stopped: {} (exit {}, no ticks); the log {} could not be finished: {}'.format(
+            header['stop_message'], header['exit_code'], log.path, problem))
+    else:
+        say('stopped: {} (exit {}, no ticks); log {}'.format(header['stop_message'], header['exit_code'], log.path))
 
 
 def _log_rows(config, ts_s, duration_s):

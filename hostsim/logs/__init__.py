@@ -1,7 +1,8 @@
-"""Robot logs on the host: replay of balance runs (replay) and motor identification (identify)."""
+"""Robot logs on the host: replay of balance runs (replay), motor identification (identify),
+export to CSV (export) and live telemetry (watch)."""
 import os
 
-from tipbot_fw import logfile
+from tipbot_fw import fields, logfile
 
 
 def read_log(path, error):
@@ -15,5 +16,16 @@ def read_log(path, error):
         raise error(str(e))
     except OSError as e:
         raise error("%s: cannot read: %s" % (path, e))
-    names = [c.get("name") if isinstance(c, dict) else c for c in header.get("columns", [])]
-    return header, rows, names
+    f = fields.Fields(path, error)
+    cols = header.get("columns")
+    if not isinstance(cols, list) or not all(isinstance(c, dict) and isinstance(c.get("name"), str) for c in cols):
+        f.fail("columns", "must be a list of {name, unit} objects")
+    for key, checker in (("kind", fields.string), ("versions", fields.obj), ("gains", fields.obj),
+                         ("config", fields.obj), ("calibration", fields.obj), ("stop_message", fields.string),
+                         ("stop_reason", fields.string)):
+        if key in header:
+            f.check(key, header[key], checker)
+    versions = header.get("versions", {})
+    for key in sorted(versions):
+        f.check("versions." + key, versions[key], fields.string)
+    return header, rows, [c["name"] for c in cols]

@@ -82,7 +82,9 @@ from hostsim.logs import read_log
 from hostsim.model.motors import DRIVER_MOTOR, ROLE_MOTOR, TABLE2, TABLE2_G
 from hostsim.model.params import DEFAULT_PARAMS_PATH, MOTOR_FIELDS, MOTOR_ROLES, load_params, parse_params
 from hostsim.paths import out_dir
+from tipbot_fw import fields
 from tipbot_fw import identify as fw_identify
+from tipbot_fw.plausibility import BATTERY_MAX_V, BATTERY_MIN_V
 
 DEFAULT_OUT = out_dir("identify")
 DEG = math.pi / 180.0
@@ -168,7 +170,37 @@ def load_log(path):
     if header.get("stop_reason") != "completed":
         raise IdentifyError("%s: the identify run stopped early (%s: %s); record it again"
                             % (path, header.get("stop_reason"), header.get("stop_message")))
-    return IdLog(path, header, rows)
+    check_content(path, header, rows, names)
+    try:
+        return IdLog(path, header, rows)
+    except (KeyError, TypeError, ValueError, AttributeError, IndexError) as e:
+        raise IdentifyError("%s: a header this version cannot interpret: %s: %s" % (path, type(e).__name__, e))
+
+
+def check_content(path, header, rows, names):
+    """The header's duty, finite rows, battery readings an EV3 can give, and the drive phase's
+    duty column equal to the header's (IdentifyError '<log>: field <name> <problem>')."""
+    f = fields.Fields(path, IdentifyError)
+    duty = f.check("duty", header.get("duty"), fields.number(lo=-100, hi=100, lo_open=False, integer=True))
+    if duty == 0:
+        f.fail("duty", "is 0: the motor was not driven")
+    bad = np.argwhere(~np.isfinite(rows))
+    if len(bad):
+        i, c = bad[0]
+        f.fail("rows[%d].%s" % (i, names[c]), "is %r, not a finite number" % rows[i, c])
+    col = {n: rows[:, i] for i, n in enumerate(names)}
+    battery = col["battery_v"]
+    out = np.nonzero((battery < BATTERY_MIN_V) | (battery > BATTERY_MAX_V))[0]
+    if len(out):
+        f.fail("rows[%d].battery_v" % out[0], "is %r V, outside what an EV3 battery reads (%g-%g V)"
+               % (battery[out[0]], BATTERY_MIN_V, BATTERY_MAX_V))
+    drive = col["phase"] == fw_identify.PHASE_DRIVE
+    wrong = np.nonzero(drive & (col["duty"] != duty))[0]
+    if len(wrong):
+        f.fail("duty", "is %d, but row %d of the drive says %r: header and body disagree"
+               % (duty, wrong[0], col["duty"][wrong[0]]))
+    if np.any(np.diff(col["time_s"]) < 0):
+        f.fail("rows.time_s", "goes backwards: not the reads of one run")
 
 
 def count_events(log, phase):
@@ -182,6 +214,15 @@ def count_events(log, phase):
     keep = (log.phase == phase) & (dc > 0)
     t, tp = log.t[keep], log.t_prev[keep]
     return 0.5 * (t + tp), c[keep] - 0.5 * (dc[keep] - 1.0), t - tp, dc[keep]
+
+
+def _fit(path, what, fun, x0, **kw):
+    """scipy's least_squares, with its refusals (residuals not finite, a start outside the
+    bounds) as IdentifyError naming the log."""
+    try:
+        return least_squares(fun, x0, **kw)
+    except (ValueError, FloatingPointError) as e:
+        raise IdentifyError("%s: the %s cannot be fitted: %s" % (path, what, e))
 
 
 def _line(t, y):
@@ -300,7 +341,7 @@ def fit_step(log, dead_time=True):
     lo = [-np.inf, 1e-6, 1e-4, 0.0]
     hi = [np.inf, np.inf, 10.0, MAX_DEAD_TIME_S if dead_time else 1e-12]
     x0[3] = min(x0[3], hi[3])
-    sol = least_squares(resid, x0, bounds=(lo, hi), x_scale=[1.0, 0.1, 0.01, 0.001])
+    sol = _fit(log.path, "step response", resid, x0, bounds=(lo, hi), x_scale=[1.0, 0.1, 0.01, 0.001])
     p0, phi, alpha, td = sol.x
     rms = float(np.sqrt(np.mean((step_position(sol.x, log, tm, t_end) - y) ** 2)))
     # resolution of the rise
@@ -349,8 +390,8 @@ def fit_rundown(log, step):
         lo = [-np.inf, 0.1 * w_c, 1e-3, 0.0]
         hi = [np.inf, 10.0 * w_c, 1e3, 10.0 * w_c if coulomb else 1e-9]
         x_start = np.clip(x_start, lo, [h if np.isfinite(h) else np.inf for h in hi])
-        sol = least_squares(lambda x: (rundown_position(x, tm) - y) * wts, x_start, bounds=(lo, hi),
-                            x_scale=[1.0, 0.1 * w_c, 0.1, 0.1 * w_c])
+        sol = _fit(where, "run-down", lambda x: (rundown_position(x, tm) - y) * wts, x_start, bounds=(lo, hi),
+                   x_scale=[1.0, 0.1 * w_c, 0.1, 0.1 * w_c])
         return sol.x, float(np.sqrt(np.mean((rundown_position(sol.x, tm) - y) ** 2)))
 
     xv, rms_v = fit(x0, False)

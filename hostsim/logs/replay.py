@@ -33,8 +33,10 @@ import numpy as np
 import tipbot_fw
 from tipbot_fw import logfile
 from tipbot_fw import replay as fw_replay
+from tipbot_fw import fields
 from tipbot_fw.config import ConfigError, config_from_overrides
-from tipbot_fw.gains import GainsError, load_gains
+from tipbot_fw.gains import SCALAR_BOUNDS, GainsError, load_gains
+from tipbot_fw.plausibility import BATTERY_MAX_V, BATTERY_MIN_V
 
 from hostsim.errors import TipbotError
 from hostsim.logs import read_log
@@ -57,6 +59,15 @@ def load_log(path):
     header["config"] is the configuration in force, completed with this version's defaults
     for fields an older firmware did not have (notes say which)."""
     header, rows, names = read_log(path, ReplayError)
+    try:
+        return _interpret(path, header, rows, names)
+    except (KeyError, TypeError, ValueError, AttributeError, IndexError) as e:
+        # a header whose fields have types this version does not expect (check_content names
+        # the ones it knows): one line, not a traceback
+        raise ReplayError("%s: a header this version cannot interpret: %s: %s" % (path, type(e).__name__, e))
+
+
+def _interpret(path, header, rows, names):
     if header.get("kind", "run") != "run":
         raise ReplayError("%s: a log of kind %r, not a balance run: analyse it with `python -m hostsim %s`"
                           % (path, header["kind"], header["kind"]))
@@ -93,7 +104,44 @@ def load_log(path):
     if len(rows) == 0:
         raise ReplayError("%s: the log has no ticks (the run stopped before its control loop: %s)"
                           % (path, header.get("stop_message", "see its header")))
+    check_content(path, header, rows)
+    if header.get("incomplete"):
+        notes.append("the log is incomplete: %s" % header["incomplete"])
     return header, rows, notes
+
+
+def check_content(path, header, rows):
+    """What a replay takes from a log, checked (ReplayError '<log>: field <name> <problem>'): the
+    header's period, gains hash, calibration and counts, and finite rows with a battery voltage
+    an EV3 can read, sampled at the header's period."""
+    f = fields.Fields(path, ReplayError)
+    lo, hi, _, why = SCALAR_BOUNDS["ts_s"]
+    ts = f.number("ts_s", header["ts_s"], lo=lo, hi=hi, lo_open=False)
+    sha = header["gains"]["sha256"]
+    if not isinstance(sha, str) or len(sha) != 64 or any(c not in "0123456789abcdef" for c in sha):
+        f.fail("gains.sha256", "must be the 64 hex digits of a sha256, got %r" % (sha,))
+    f.check("calibration", header["calibration"], fields.obj)
+    f.number("calibration.gyro_bias_dps", header["calibration"].get("gyro_bias_dps"), lo=-100, hi=100, lo_open=False)
+    counts = header["counts_per_rot"]
+    if not isinstance(counts, list) or len(counts) != 4 or not all(
+            isinstance(c, int) and not isinstance(c, bool) and 1 <= c <= 100000 for c in counts):
+        f.fail("counts_per_rot", "must be 4 positive integers, got %r" % (counts,))
+    f.check("first_tick", header["first_tick"], fields.number(lo=0, lo_open=False, integer=True))
+    if "encoder_offsets" in header:
+        f.check("encoder_offsets", header["encoder_offsets"], fields.numbers(4))
+    bad = np.argwhere(~np.isfinite(rows))
+    if len(bad):
+        i, c = bad[0]
+        f.fail("rows[%d].%s" % (i, logfile.COLUMN_NAMES[c]), "is %r, not a finite number" % rows[i, c])
+    battery = rows[:, logfile.BATTERY]
+    out = np.nonzero((battery < BATTERY_MIN_V) | (battery > BATTERY_MAX_V))[0]
+    if len(out):
+        f.fail("rows[%d].battery_v" % out[0], "is %r V, outside what an EV3 battery reads (%g-%g V)"
+               % (battery[out[0]], BATTERY_MIN_V, BATTERY_MAX_V))
+    if len(rows) >= 3:
+        step = float(np.median(np.diff(rows[:, logfile.TIME])))
+        if not 0.5 * ts <= step <= 2.0 * ts:
+            f.fail("ts_s", "is %g s, but the rows are %g s apart: the header does not describe these rows" % (ts, step))
 
 
 def _leaves(doc, prefix=""):
@@ -240,6 +288,9 @@ def replay_log(log_path, gains_path=None, logged_gains_path=None, tol=DEFAULT_TO
     r.logged_gains_path = logged_gains_path or find_logged_gains(log_path, header)
     if r.logged_gains_path:
         g = _load_gains(r.logged_gains_path)
+        if abs(g.ts_s - header["ts_s"]) > 1e-9 * g.ts_s:
+            raise ReplayError("%s: field ts_s is %g s, but its gains %s have ts_s %g s: the header does not "
+                              "describe the run" % (log_path, header["ts_s"], r.logged_gains_path, g.ts_s))
         r.replayed = replay_rows(header, rows, g)
         r.diffs = [(label, max_abs_diff(r.replayed, rows, cols)) for label, cols in groups()]
         r.max_diff = max(d for _, d in r.diffs)

@@ -26,6 +26,32 @@ POSITIVE = (
 NON_NEGATIVE = tuple("%s_beta_nm_s" % r for r in MOTOR_ROLES)
 REQUIRED = POSITIVE + NON_NEGATIVE
 
+# Physical ranges [lo, hi] (SI) of a LEGO robot of this kind, by the end of the name; a value
+# outside is a typo or a unit mistake (cm for m, g for kg), not a robot.
+RANGES = (
+    ("rw_m", 0.005, 0.1),            # LEGO wheels: 8 mm to 47 mm
+    ("track_m", 0.02, 1.0),
+    ("_m", 1e-3, 0.5),               # link lengths
+    ("mw_kg", 1e-3, 1.0),
+    ("_kg", 1e-3, 5.0),
+    ("jw_kg_m2", 1e-8, 1e-2),
+    ("jm_kg_m2", 1e-8, 1e-2),
+    ("_kg_m2", 1e-8, 0.1),
+    ("g_m_s2", 9.7, 9.9),            # the Earth's surface
+    ("u_max_v", 1.0, 11.0),          # tipbot_fw.plausibility: what an EV3 battery gives
+    ("ke_v_s", 1e-3, 2.0),
+    ("km_nm_a", 1e-3, 2.0),
+    ("ra_ohm", 0.5, 100.0),
+    ("beta_nm_s", 0.0, 0.1),
+)
+
+
+def value_range(name):
+    for suffix, lo, hi in RANGES:
+        if name.endswith(suffix):
+            return lo, hi
+    raise KeyError(name)
+
 
 def parse_params(doc, source="<parameters>"):
     """Validate a parameters document (the parsed JSON) and return ``{name: float}``."""
@@ -40,7 +66,8 @@ def parse_params(doc, source="<parameters>"):
     for name in REQUIRED:
         entry = entries[name]
         raw = entry.get("value") if isinstance(entry, dict) else entry
-        values[name] = f.number("parameters.%s" % name, raw, lo=0, lo_open=name in POSITIVE)
+        lo, hi = value_range(name)
+        values[name] = f.number("parameters.%s" % name, raw, lo=lo, hi=hi, lo_open=False)
     return values
 
 

@@ -36,8 +36,9 @@ The firmware must be told the start pose, gyro mounting and wheel radius: --writ
 FILE writes the matching firmware configuration (hostsim.sim.fil.firmware_config; realtime
 priority 0), for `--config` or for `make deploy CONFIG=FILE`.
 
-Prints "fake_robot: ready ..." once the tree exists, a summary when it stops (after
---duration seconds, or on SIGTERM / SIGINT). Not for accuracy studies: the host's scheduling
+Prints "fake_robot: ready ..." once the tree exists, what the brick shows (its status lights
+when they change, the notes of each melody), a summary when it stops (after --duration
+seconds, or on SIGTERM / SIGINT). Not for accuracy studies: the host's scheduling
 makes runs unrepeatable; use hostsim.sim.fil for that.
 """
 import argparse
@@ -66,6 +67,9 @@ DEFAULT_STEP_S = 0.001
 DEFAULT_HOLD_S = 2.0
 PLANT_DT_S = 0.001
 FALLEN_RAD = math.pi / 2
+# How often the lights and the speaker are looked at, and the pause that ends a melody.
+SIGNALS_EVERY_S = 0.02
+MELODY_GAP_S = 0.3
 
 
 class RealTimeRobot:
@@ -101,6 +105,8 @@ class RealTimeRobot:
         self.volts = np.zeros(5)
         self.max_abs_th1 = 0.0
         self.trace_t, self.trace_x, self.trace_u = [], [], []
+        self.lights = self.fake.lights()
+        self.tones_heard, self.notes, self.t_note_s, self.t_signals_s = 0, [], 0.0, 0.0
         self._publish()
 
     def _publish(self):
@@ -131,10 +137,29 @@ class RealTimeRobot:
         return "%s%s" % ("never released" if self.t_release_s is None else "released at %.3f s" % self.t_release_s,
                          ", FELL" if self.fallen else "")
 
-    def _event(self, text):
-        self.events.append(text)
+    def _watch_signals(self, t_s):
+        """Say what the brick shows: its lights when they change, a melody's notes once it ended."""
+        self.t_signals_s = t_s
+        lights = self.fake.lights()
+        if lights != self.lights:
+            self.lights = lights
+            self._tell("lights: left %(left)s, right %(right)s" % lights)
+        tones = self.fake.tones(self.tones_heard)
+        self.tones_heard += len(tones)
+        if tones:
+            self.notes += [hz for _, hz in tones if hz]
+            self.t_note_s = t_s
+        elif self.notes and t_s - self.t_note_s > MELODY_GAP_S:
+            self._tell("sound: %s Hz" % " ".join(str(hz) for hz in self.notes))
+            self.notes = []
+
+    def _tell(self, text):
         if self.say:
             self.say(text)
+
+    def _event(self, text):
+        self.events.append(text)
+        self._tell(text)
 
     def step(self, t_s):
         """Advance to wall-clock time t_s (s since start) and publish the readings there."""
@@ -168,6 +193,8 @@ class RealTimeRobot:
         self.volts = v
         self.t_s = t_s
         self._publish()
+        if t_s - self.t_signals_s >= SIGNALS_EVERY_S:
+            self._watch_signals(t_s)
 
     def save_trace(self, path):
         np.savez(path, t_s=np.array(self.trace_t), x_si=np.array(self.trace_x).reshape(-1, 10),

@@ -60,7 +60,7 @@ from tipbot_fw.devices import MemoryDevices
 from tipbot_fw.config import MOTOR_ROLES
 from tipbot_fw.gains import ACTUATED_INPUTS, gains_from_dict, load_gains
 from tipbot_fw.safety import DevicesMissing
-from tipbot_fw.session import log_refused_start, run_session
+from tipbot_fw.session import log_refused_start, open_log, run_session
 
 DEFAULT_IO_LATENCY_S = 0.002
 PLANT_DT_S = 0.001
@@ -284,6 +284,8 @@ def run_firmware(sc, gains_path=None, gains_doc=None, sysfs=True, log_path=None,
         log_path = os.path.join(tmp.name, "run.log")
     rows = None
     try:
+        # as tipbot_fw.cli: the log is opened before the devices, so a refused start has one too
+        log = open_log(log_path, config, gains.ts_s, sc.duration_s) if log_path else None
         if sysfs:
             world.ports = ports
             try:
@@ -291,8 +293,8 @@ def run_firmware(sc, gains_path=None, gains_doc=None, sysfs=True, log_path=None,
             except Exception as e:      # as tipbot_fw.cli: a header-only log that says why, exit 3
                 devices = None
                 error = DevicesMissing(" ".join(("%s: %s" % (type(e).__name__, e)).split()))
-                if log_path:
-                    log_refused_start(log_path, gains, config, sc.duration_s, error, say=lambda msg: None)
+                if log is not None:
+                    log_refused_start(log, gains, config, sc.duration_s, error, say=lambda msg: None)
                 code, header = error.exit_code, {"stop_reason": error.reason, "stop_message": str(error)}
         else:
             devices = MemoryDevices(source=world.read, battery_v=world.battery_reading)
@@ -301,7 +303,7 @@ def run_firmware(sc, gains_path=None, gains_doc=None, sysfs=True, log_path=None,
             if isinstance(world, BrickWorld):
                 world.start_at(clock.t)   # a blocking set-up (the gyro's mode write) took this long
             try:
-                code, header = run_session(devices, gains, config, clock, log_path=log_path,
+                code, header = run_session(devices, gains, config, clock, log=log,
                                            duration_s=sc.duration_s, say=lambda msg: None, cues=QUIET_CUES)
             finally:
                 devices.close()

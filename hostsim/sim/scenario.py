@@ -38,6 +38,7 @@ from hostsim.errors import TipbotError
 from hostsim.model.params import REQUIRED
 from hostsim.paths import REPO_ROOT
 from tipbot_fw import fields
+from tipbot_fw.plausibility import BATTERY_MAX_V, BATTERY_MIN_V
 
 SCENARIO_DIR = os.path.join(REPO_ROOT, "scenarios")
 
@@ -211,11 +212,24 @@ PAPER_TO_SI = (0.01, 0.01, 1.0, 1.0, 1.0, 0.01, 0.01, 1.0, 1.0, 1.0)
 POSITIVE = fields.number(lo=0)
 NON_NEGATIVE = fields.number(lo=0, lo_open=False)
 
+# Physical and practical bounds (the simulator stores every tick of a run: 600 s at 1 kHz is
+# about 50 MB of trace; a push beyond 20 rad/s on link 1, or an impulse beyond 5 N s (the whole
+# 1.3 kg robot at 4 m/s), or 12 V of disturbance is no robot's).
+MAX_DURATION_S = 600.0
+MAX_TIME_S = 3600.0
+MAX_PUSH_RAD_S = 20.0
+MAX_IMPULSE_N_S = 5.0
+MAX_DISTURBANCE_V = 12.0
+STATE_BOUNDS = (10.0, 10.0, 3.2, 3.2, 3.2, 5.0, 5.0, 50.0, 50.0, 50.0)   # m, rad, m/s, rad/s
+NAME_CHARS = set("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_.-")
 
-def _vector(f, field, value, length):
+
+def _vector(f, field, value, length, bounds=None):
     if not isinstance(value, list) or len(value) != length:
         f.fail(field, "must be a list of %d numbers, got %r" % (length, value))
-    return [f.number("%s[%d]" % (field, i), v) for i, v in enumerate(value)]
+    if bounds is None:
+        return [f.number("%s[%d]" % (field, i), v) for i, v in enumerate(value)]
+    return [f.number("%s[%d]" % (field, i), v, lo=-b, hi=b, lo_open=False) for i, (v, b) in enumerate(zip(value, bounds))]
 
 
 def parse_scenario(doc, src="<scenario>"):
@@ -226,9 +240,15 @@ def parse_scenario(doc, src="<scenario>"):
     f.known(doc, set(DEFAULTS) | {"name"})
     sc = dict(DEFAULTS)
     sc.update(doc)
-    sc["name"] = str(doc.get("name") or os.path.splitext(os.path.basename(src))[0])
+    # the file's own name, made a name, unless the document names itself (then it must be one)
+    sc["name"] = doc["name"] if "name" in doc else "".join(
+        c if c in NAME_CHARS else "_" for c in os.path.splitext(os.path.basename(src))[0]).lstrip(".") or "scenario"
+    if (not isinstance(sc["name"], str) or not sc["name"] or not set(sc["name"]) <= NAME_CHARS
+            or sc["name"].startswith(".") or len(sc["name"]) > 80):
+        f.fail("name", "must be a name (letters, digits, _ . -; not starting with a dot; at most 80), not a "
+               "path, got %r" % (sc["name"],))
     f.check("description", sc["description"], fields.string)
-    sc["duration_s"] = f.number("duration_s", sc["duration_s"], lo=0)
+    sc["duration_s"] = f.number("duration_s", sc["duration_s"], lo=0, hi=MAX_DURATION_S)
     _choices(f, "controllers", sc["controllers"], CONTROLLERS)
     _choices(f, "modes", sc["modes"], MODES)
     f.check("plant_variant", sc["plant_variant"], fields.one_of("paper", "physical"))
@@ -237,7 +257,7 @@ def parse_scenario(doc, src="<scenario>"):
     f.check("param_scale", sc["param_scale"], fields.obj)
     f.known(sc["param_scale"], REQUIRED, "param_scale.")
     for name, factor in sc["param_scale"].items():
-        f.check("param_scale.%s" % name, factor, POSITIVE)
+        f.check("param_scale.%s" % name, factor, fields.number(lo=0.01, hi=100.0, lo_open=False))
     sc["x0_si"] = _state(f, sc, "x0") or [0.0] * 10
     sc["xhat0_si"] = _state(f, sc, "xhat0")
     del sc["x0_paper_units"], sc["xhat0_paper_units"]
@@ -245,11 +265,11 @@ def parse_scenario(doc, src="<scenario>"):
     for i, d in enumerate(sc["disturbances"]):
         name = "disturbances[%d]" % i
         _exactly(f, name, d, ("t_start_s", "t_end_s", "w_v"))
-        t0 = f.number(name + ".t_start_s", d["t_start_s"], lo=0, lo_open=False)
-        t1 = f.number(name + ".t_end_s", d["t_end_s"], lo=0, lo_open=False)
+        t0 = f.number(name + ".t_start_s", d["t_start_s"], lo=0, hi=MAX_TIME_S, lo_open=False)
+        t1 = f.number(name + ".t_end_s", d["t_end_s"], lo=0, hi=MAX_TIME_S, lo_open=False)
         if t1 < t0:
             f.fail(name, "ends before it starts")
-        w = _vector(f, name + ".w_v", d["w_v"], 5)
+        w = _vector(f, name + ".w_v", d["w_v"], 5, [MAX_DISTURBANCE_V] * 5)
         if w[2] != 0.0:
             f.fail(name + ".w_v[2]", "must be 0 (link 1 has no motor)")
     f.check("pushes", sc["pushes"], fields.array)
@@ -259,21 +279,23 @@ def parse_scenario(doc, src="<scenario>"):
         if isinstance(p, dict) and "impulse_n_s" in p:
             _exactly(f, name, p, ("t_s", "link", "impulse_n_s"))
             f.check(name + ".link", p["link"], fields.one_of(1, 2, 3))
-            push = Push(f.number(name + ".t_s", p["t_s"], lo=0, lo_open=False), link=p["link"],
-                        impulse_n_s=f.number(name + ".impulse_n_s", p["impulse_n_s"]))
+            push = Push(f.number(name + ".t_s", p["t_s"], lo=0, hi=MAX_TIME_S, lo_open=False), link=p["link"],
+                        impulse_n_s=f.number(name + ".impulse_n_s", p["impulse_n_s"], lo=-MAX_IMPULSE_N_S,
+                                             hi=MAX_IMPULSE_N_S, lo_open=False))
         else:
             _exactly(f, name, p, ("t_s", "th1_dot_rad_s"))
-            push = Push(f.number(name + ".t_s", p["t_s"], lo=0, lo_open=False),
-                        f.number(name + ".th1_dot_rad_s", p["th1_dot_rad_s"]))
+            push = Push(f.number(name + ".t_s", p["t_s"], lo=0, hi=MAX_TIME_S, lo_open=False),
+                        f.number(name + ".th1_dot_rad_s", p["th1_dot_rad_s"], lo=-MAX_PUSH_RAD_S,
+                                 hi=MAX_PUSH_RAD_S, lo_open=False))
         pushes.append(push)
     f.check("sensors", sc["sensors"], fields.obj)
     f.known(sc["sensors"], SENSOR_DEFAULTS, "sensors.")
     sensors = dict(SENSOR_DEFAULTS)
     sensors.update(sc["sensors"])
-    for k in ("gyro_bias_dps", "gyro_sign"):
-        f.check("sensors." + k, sensors[k], fields.number())
-    f.check("sensors.gyro_noise_dps", sensors["gyro_noise_dps"], NON_NEGATIVE)
-    f.check("sensors.battery_v", sensors["battery_v"], POSITIVE)
+    f.check("sensors.gyro_bias_dps", sensors["gyro_bias_dps"], fields.number(lo=-100, hi=100, lo_open=False))
+    f.check("sensors.gyro_noise_dps", sensors["gyro_noise_dps"], fields.number(lo=0, hi=50, lo_open=False))
+    f.check("sensors.battery_v", sensors["battery_v"],
+            fields.number(lo=BATTERY_MIN_V, hi=BATTERY_MAX_V, lo_open=False))
     f.check("sensors.gyro_sign", sensors["gyro_sign"], fields.one_of(1, -1))
     sc["sensors"] = sensors
     sc["brick"] = _brick(f, sc["brick"])
@@ -285,11 +307,11 @@ def parse_scenario(doc, src="<scenario>"):
                           "replace it)" % off)
         if "io_latency_s" in doc:
             f.fail("io_latency_s", "does not apply with the brick's timing (each duty lands at its own write)")
-    f.check("extra_delay_ticks", sc["extra_delay_ticks"], fields.number(lo=0, lo_open=False, integer=True))
-    sc["jitter_s"] = f.number("jitter_s", sc["jitter_s"], lo=0, lo_open=False)
-    sc["io_latency_s"] = f.number("io_latency_s", sc["io_latency_s"], lo=0, lo_open=False)
-    sc["settle_band_rad"] = f.number("settle_band_rad", sc["settle_band_rad"], lo=0)
-    f.check("seed", sc["seed"], fields.number(integer=True))
+    f.check("extra_delay_ticks", sc["extra_delay_ticks"], fields.number(lo=0, hi=100, lo_open=False, integer=True))
+    sc["jitter_s"] = f.number("jitter_s", sc["jitter_s"], lo=0, hi=0.05, lo_open=False)
+    sc["io_latency_s"] = f.number("io_latency_s", sc["io_latency_s"], lo=0, hi=0.05, lo_open=False)
+    sc["settle_band_rad"] = f.number("settle_band_rad", sc["settle_band_rad"], lo=0, hi=3.2)
+    f.check("seed", sc["seed"], fields.number(lo=0, hi=2 ** 32 - 1, lo_open=False, integer=True))
     f.check("expect", sc["expect"], fields.obj)
     runs = {"%s/%s" % (m, c) for m in sc["modes"] for c in sc["controllers"]}
     for label, bounds in sc["expect"].items():
@@ -370,9 +392,10 @@ def _state(f, sc, base):
     if si is not None and paper is not None:
         f.fail(base + "_paper_units", "conflicts with %s_si: give one" % base)
     if si is not None:
-        return _vector(f, base + "_si", si, 10)
+        return _vector(f, base + "_si", si, 10, STATE_BOUNDS)
     if paper is not None:
-        return [v * k for v, k in zip(_vector(f, base + "_paper_units", paper, 10), PAPER_TO_SI)]
+        return [v * k for v, k in zip(_vector(f, base + "_paper_units", paper, 10,
+                                              [b / k for b, k in zip(STATE_BOUNDS, PAPER_TO_SI)]), PAPER_TO_SI)]
     return None
 
 
@@ -385,6 +408,8 @@ def load_scenario(path):
     sc = parse_scenario(fields.read_json(path, ScenarioError)[0], path)
     if not os.path.isabs(sc.gains):
         sc = dataclasses.replace(sc, gains=os.path.join(REPO_ROOT, sc.gains))
+    if not os.path.isfile(sc.gains):
+        raise ScenarioError(fields.message(path, "gains", "names %s, which is no file" % sc.gains))
     return sc
 
 

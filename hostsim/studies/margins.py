@@ -35,6 +35,7 @@ import time
 import numpy as np
 
 from hostsim.paths import REPO_ROOT, out_dir
+from tipbot_fw.config import MAX_CONSECUTIVE_OVERRUNS
 
 DEFAULT_GAINS = ("gains/paper.json", "gains/physical.json")
 BASE_SCENARIO = "brick_realistic"
@@ -68,9 +69,9 @@ MARGINS = (
     Margin("gyro_freeze", "gyro freeze", "ms", "42, one in 20 s", 42.0, 1000.0, 10.0),
 )
 COARSE = 4.0      # make sim: tolerances x this
-# The firmware's largest allowed limits.max_consecutive_overruns (tipbot_fw.config): for the
-# ablation's runs that must go on whatever the timing does.
-OVERRUN_LIMIT_LIFTED = 1000
+# The firmware's largest allowed limits.max_consecutive_overruns: for the ablation's runs that
+# must go on whatever the timing does.
+OVERRUN_LIMIT_LIFTED = MAX_CONSECUTIVE_OVERRUNS
 
 # Ablation groups: the brick fields each effect owns (hostsim.sim.scenario.Brick).
 GROUPS = (

@@ -6,6 +6,8 @@ The tree has the ev3dev-stretch layout and attribute formats::
     ROOT/lego-sensor/sensor0/   address (ev3-ports:in2), driver_name (lego-ev3-gyro), mode, bin_data, ...
     ROOT/power_supply/lego-ev3-battery/voltage_now   (microvolts)
     ROOT/board-info/board0/uevent
+    ROOT/leds/led0:red:brick-status/brightness, ...   (the status lights: tipbot_fw.feedback.LEDS)
+    ROOT/input-by-path/platform-sound-event         (the speaker's input device, a plain file here)
 
 Clients point at ROOT (``ev3dev2.Device.DEVICE_ROOT_PATH = fake.sysfs_root`` or
 ``Ev3Devices(config, sysfs_root=fake.sysfs_root)``) and need no patching. The files on disk are
@@ -57,6 +59,8 @@ import stat
 import struct
 import tempfile
 from collections import Counter, namedtuple
+
+from tipbot_fw import feedback
 
 #: Size of every fake-owned text record (value + "\n" + space padding) and of bin_data.
 RECORD_BYTES = 32
@@ -323,6 +327,8 @@ class FakeEV3(object):
             self._gyro = self._make_gyro(gyro_port, gyro_driver, path)
         self._make_battery(battery_v)
         self._make_board_info()
+        self._make_lights()
+        self._make_speaker()
         # relpath -> device, for poll_attribute
         self._by_relpath = {}
         for dev in list(self._motors.values()) + ([self._gyro] if self._gyro else []):
@@ -423,6 +429,25 @@ class FakeEV3(object):
             os.write(fd, (text + '\n').encode('ascii'))
         finally:
             os.close(fd)
+
+    def _make_lights(self):
+        self._lights = []
+        for _, _, name in feedback.LEDS:
+            led = _Device(name, 'leds-pwm', os.path.join(self.sysfs_root, 'leds', name))
+            os.makedirs(led.path)
+            self._add(led, 'brightness', '0', _RW)
+            self._add(led, 'max_brightness', '255')
+            self._add(led, 'trigger', '[none] timer heartbeat default-on', _RW)
+            self._lights.append(led)
+
+    def _make_speaker(self):
+        """The speaker's input device: the firmware appends struct input_event records (one
+        tone event each); kept whole, so a test hears every note and when it started."""
+        path = feedback.sound_device(self.sysfs_root)
+        os.makedirs(os.path.dirname(path))
+        fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_EXCL, 0o660)
+        self._fds.append(fd)
+        self._speaker_fd = fd
 
     # ----------------------------------------------------------------- fake-owned values
     def _put(self, attr, text):
@@ -665,6 +690,30 @@ class FakeEV3(object):
         return self.gyro_mode_write_s, None
 
     # ----------------------------------------------------------------- queries
+    def lights(self):
+        """{'left': color, 'right': color} the status lights show now ('off', 'green', 'amber',
+        'red'; a brightness that is neither 0 nor max_brightness counts as on)."""
+        on = []
+        for led in self._lights:
+            raw = os.pread(led.attrs['brightness'].fd, 64, 0)
+            try:
+                on.append(1 if int(_first_line(raw)) > 0 else 0)
+            except ValueError:
+                on.append(0)
+        return {'left': feedback.COLOR_NAMES[tuple(on[0:2])], 'right': feedback.COLOR_NAMES[tuple(on[2:4])]}
+
+    def tones(self, start=0):
+        """[(t_s, Hz)] of the tone events written to the speaker so far, from the start-th on
+        (0 Hz: silence); t_s is the writer's clock (tipbot_fw.feedback writes time.monotonic())."""
+        size = feedback.INPUT_EVENT.size
+        data = os.pread(self._speaker_fd, 1 << 24, start * size)
+        out = []
+        for at in range(0, len(data) - size + 1, size):
+            sec, usec, kind, code, value = feedback.INPUT_EVENT.unpack_from(data, at)
+            if kind == feedback.EV_SND and code == feedback.SND_TONE:
+                out.append((sec + usec * 1e-6, value))
+        return out
+
     def motor_duty(self, port):
         """Duty (percent) applied at the last poll: 0 unless running run-direct."""
         return self._motor(port).duty

@@ -1,0 +1,308 @@
+"""The log file's container (docs/log-format.md): records that each check themselves, written
+while the robot runs, so that a crash, a full disk or a power cut keeps what was written and
+the file still reads. Generic over the columns the header declares (tipbot_fw.logfile has the
+run log's columns, tipbot_fw.identify the identify log's). Python 3.5, numpy, standard library.
+
+Format version 2::
+
+    b"TIPBLOG\\n"  u32 format version (2)
+    record*       u32 tag | u32 payload length | u32 CRC-32 of tag and length | payload | u32 CRC-32 of payload
+
+Tags: HEAD (the JSON header, first and once), INFO (JSON merged into the header: what a run
+learns after its start, such as the calibration and the encoder zeros), ROWS (u64 index of the
+first row, u32 row count, then the rows: little-endian float64, ``len(columns)`` a row), TAIL
+(JSON merged into the header: how the run ended; last). The file is preallocated for the rows
+a run can write (``posix_fallocate``: a full disk is found before the motors move) and cut to
+its end when it is closed.
+
+Reading (read_log): every record is checked. The intact part of a log that does not end with
+its TAIL (a crash or a power cut, or a write that failed: the file ends inside a record, or in
+zeros where the preallocated space was never written, or without a TAIL) is returned, with
+``header['incomplete']`` saying where and why it ends; a damaged record followed by intact
+ones (a flipped bit, not an end) is refused. Logs of format version 1 (one CRC over the whole
+file, written at the end of a run) are still read.
+"""
+import json
+import os
+import struct
+import zlib
+
+import numpy as np
+
+from tipbot_fw import fields
+
+MAGIC = b'TIPBLOG\n'
+FORMAT_VERSION = 2
+READ_VERSIONS = (1, 2)
+HEAD, INFO, ROWS, TAIL = b'HEAD', b'INFO', b'ROWS', b'TAIL'
+TAGS = (HEAD, INFO, ROWS, TAIL)
+_U32 = struct.Struct('<I')
+_REC = struct.Struct('<4sII')          # tag, payload length, CRC of both
+_ROWS = struct.Struct('<QI')           # first row index, row count
+_V1_COUNTS = struct.Struct('<IIIQ')    # version 1: format_version, header_len, ncols, nrows
+RESERVE_EXTRA_BYTES = 256 * 1024       # header, INFO and TAIL records, beyond the rows
+MAX_JSON_BYTES = 16 * 1024 * 1024
+
+
+class LogFormatError(ValueError):
+    """The file is not a tipbot log, or a damaged one; the message says what is wrong."""
+
+
+class LogWriteError(OSError):
+    """The log cannot be opened or reserved (the path, the disk); raised before any motor moves."""
+
+
+def _crc(data, start=0):
+    return zlib.crc32(data, start) & 0xffffffff
+
+
+def _json_bytes(doc):
+    return json.dumps(doc, sort_keys=True, allow_nan=False).encode('utf-8')
+
+
+class LogWriter(object):
+    """A log written record by record. Opening checks the path and reserves room for
+    ``reserve_rows`` rows (LogWriteError if either fails: nothing has run yet). After that
+    nothing raises: a failed write (a full disk, an I/O error) is kept in ``failed``, the later
+    records are skipped, and what was written before still reads."""
+
+    def __init__(self, path, columns, reserve_rows=0, layout=None):
+        self.path = path
+        self.layout = layout
+        self.ncols = len(columns)
+        self.columns = [{'name': n, 'unit': u} for n, u in columns]
+        self.rows_written = 0
+        self.failed = None
+        self.closed = False
+        try:
+            self.fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+        except OSError as e:
+            raise LogWriteError(e.errno, 'cannot write the log {}: {}'.format(path, e.strerror or e))
+        self.pos = 0
+        reserve = RESERVE_EXTRA_BYTES + int(reserve_rows) * 8 * self.ncols
+        try:
+            if hasattr(os, 'posix_fallocate'):
+                try:
+                    os.posix_fallocate(self.fd, 0, reserve)
+                except OSError as e:
+                    if e.errno not in (95, 22):      # EOPNOTSUPP, EINVAL: a file system without it
+                        raise
+            self._write(MAGIC + _U32.pack(FORMAT_VERSION))
+        except OSError as e:
+            os.close(self.fd)
+            try:
+                os.unlink(path)
+            except OSError:
+                pass
+            raise LogWriteError(e.errno, 'no room for the log {} ({:.1f} MB for {} rows): {}'.format(
+                path, reserve / 1e6, reserve_rows, e.strerror or e))
+
+    def _write(self, data):
+        n = os.pwrite(self.fd, data, self.pos)
+        if n != len(data):
+            raise OSError(28, 'short write ({} of {} bytes)'.format(n, len(data)))
+        self.pos += n
+
+    def _record(self, tag, payload):
+        if self.failed is not None or self.closed:
+            return False
+        head = tag + _U32.pack(len(payload))
+        try:
+            self._write(head + _U32.pack(_crc(head)) + bytes(payload) + _U32.pack(_crc(payload)))
+        except OSError as e:
+            self.failed = 'writing the log failed after {} rows: {}'.format(self.rows_written, e.strerror or e)
+            return False
+        return True
+
+    def header(self, doc):
+        doc = dict(doc)
+        doc['columns'] = self.columns
+        doc['format_version'] = FORMAT_VERSION
+        if self.layout is not None:
+            doc['layout'] = self.layout
+        return self._record(HEAD, _json_bytes(doc))
+
+    def info(self, doc):
+        return self._record(INFO, _json_bytes(doc))
+
+    def rows(self, block):
+        """Append rows (n x ncols, any float array) as one ROWS record. -> written or not."""
+        body = np.ascontiguousarray(block, dtype='<f8')
+        if body.ndim != 2 or body.shape[1] != self.ncols:
+            raise ValueError('log rows must be n x {}, got shape {}'.format(self.ncols, body.shape))
+        ok = self._record(ROWS, _ROWS.pack(self.rows_written, len(body)) + body.tobytes())
+        if ok:
+            self.rows_written += len(body)
+        return ok
+
+    def rows_bytes(self, data, count):
+        """Append ``count`` rows given as their bytes (little-endian float64, ncols a row), as one
+        ROWS record: what the control loop's slack can afford (no conversion)."""
+        if len(data) != 8 * self.ncols * count:
+            raise ValueError('{} bytes are not {} rows of {} columns'.format(len(data), count, self.ncols))
+        ok = self._record(ROWS, _ROWS.pack(self.rows_written, count) + bytes(data))
+        if ok:
+            self.rows_written += count
+        return ok
+
+    def close(self, trailer):
+        """TAIL, cut the file to its end, fsync, close. Never raises; -> None or the problem."""
+        if self.closed:
+            return self.failed
+        self._record(TAIL, _json_bytes(trailer))
+        self.closed = True
+        try:
+            os.ftruncate(self.fd, self.pos)
+            os.fsync(self.fd)
+        except OSError as e:
+            if self.failed is None:
+                self.failed = 'finishing the log failed: {}'.format(e.strerror or e)
+        try:
+            os.close(self.fd)
+        except OSError:
+            pass
+        return self.failed
+
+
+def write_log(path, header, rows, columns):
+    """A whole log at once (identify logs, tests): header, the rows (n x ncols, or an iterable of
+    such blocks) and a TAIL that holds nothing more. Raises what fails."""
+    blocks = [rows] if isinstance(rows, np.ndarray) else rows
+    w = LogWriter(path, columns)
+    w.header(header)
+    for block in blocks:
+        if len(block):
+            w.rows(block)
+    problem = w.close({})
+    if problem:
+        raise OSError(problem)
+
+
+# ------------------------------------------------------------------------------ reading
+def _parse_json(data, path, what):
+    try:
+        doc = fields.loads(bytes(data))
+    except fields.JsonProblem as e:
+        raise LogFormatError('{}: {} {}'.format(path, what, e))
+    if not isinstance(doc, dict):
+        raise LogFormatError('{}: {} is not a JSON object'.format(path, what))
+    return doc
+
+
+def read_log(path):
+    """-> (header dict, rows as an n x ncols float64 array). LogFormatError if the file is no
+    tipbot log or is damaged; a log cut short is returned with header['incomplete']."""
+    with open(path, 'rb') as f:
+        data = f.read()
+    pre = len(MAGIC) + 4
+    if not data.startswith(MAGIC):
+        if MAGIC.startswith(data):
+            raise LogFormatError('{}: truncated: {} bytes, shorter than the fixed preamble'.format(path, len(data)))
+        raise LogFormatError('{}: not a tipbot log (bad magic bytes)'.format(path))
+    if len(data) < pre:
+        raise LogFormatError('{}: truncated: {} bytes, shorter than the fixed preamble'.format(path, len(data)))
+    (version,) = _U32.unpack_from(data, len(MAGIC))
+    if version == 1:
+        return _read_v1(path, data)
+    if version not in READ_VERSIONS:
+        raise LogFormatError('{}: log format version {} is not supported (this reader: {})'.format(
+            path, version, ', '.join(str(v) for v in READ_VERSIONS)))
+    return _read_v2(path, data, pre)
+
+
+def _read_v2(path, data, pos):
+    size = len(data)
+    header = None
+    merged = {}
+    blocks = []
+    nrows = 0
+    incomplete = None
+    ended = False
+    while pos < size:
+        if ended:
+            if not any(data[pos:]):
+                break
+            raise LogFormatError('{}: {} unexpected bytes after the end of the log'.format(path, size - pos))
+        if size - pos < _REC.size:
+            incomplete = 'the file ends inside a record header at byte {}'.format(pos)
+            break
+        tag, n, hcrc = _REC.unpack_from(data, pos)
+        if _crc(data[pos:pos + 8]) != hcrc or tag not in TAGS:
+            if not any(data[pos:]):
+                incomplete = 'the file ends in space reserved and never written, from byte {}'.format(pos)
+                break
+            raise LogFormatError('{}: corrupted: bad record header at byte {}'.format(path, pos))
+        end = pos + _REC.size + n + 4
+        if end > size:
+            incomplete = 'the file ends inside a {} record at byte {} ({} of its {} bytes)'.format(
+                tag.decode('ascii'), pos, size - pos, end - pos)
+            break
+        payload = memoryview(data)[pos + _REC.size:end - 4]
+        (pcrc,) = _U32.unpack_from(data, end - 4)
+        if _crc(payload) != pcrc:
+            if end == size or not any(data[end:]):
+                incomplete = 'its last record ({} at byte {}) is damaged'.format(tag.decode('ascii'), pos)
+                break
+            raise LogFormatError('{}: corrupted: CRC32 of the {} record at byte {} is {:08x}, expected {:08x}'.format(
+                path, tag.decode('ascii'), pos, _crc(payload), pcrc))
+        if header is None and tag != HEAD:
+            raise LogFormatError('{}: corrupted: the first record is {}, not the header'.format(path, tag.decode('ascii')))
+        if tag == HEAD:
+            if header is not None:
+                raise LogFormatError('{}: corrupted: a second header at byte {}'.format(path, pos))
+            header = _parse_json(payload, path, 'header')
+            ncols = _ncols(header, path)
+        elif tag in (INFO, TAIL):
+            merged.update(_parse_json(payload, path, 'record at byte {}'.format(pos)))
+            ended = tag == TAIL
+        else:
+            if len(payload) < _ROWS.size:
+                raise LogFormatError('{}: corrupted: ROWS record at byte {} too short'.format(path, pos))
+            first, count = _ROWS.unpack_from(payload, 0)
+            if first != nrows or len(payload) != _ROWS.size + 8 * count * ncols:
+                raise LogFormatError('{}: corrupted: ROWS record at byte {} holds rows {}..{} of {} columns in {} '
+                                     'bytes, expected row {} next'.format(path, pos, first, first + count, ncols,
+                                                                          len(payload), nrows))
+            blocks.append(np.frombuffer(payload, dtype='<f8', offset=_ROWS.size).reshape(count, ncols))
+            nrows += count
+        pos = end
+    if header is None:
+        raise LogFormatError('{}: truncated: {}'.format(path, incomplete or 'no header record'))
+    if incomplete is None and not ended:
+        incomplete = 'no trailer: the run did not finish writing its log'
+    header.update(merged)
+    if incomplete is not None:
+        header['incomplete'] = '{}; {} intact rows (a crash, a power cut or a full disk)'.format(incomplete, nrows)
+    rows = np.concatenate(blocks).astype(float) if blocks else np.zeros((0, ncols))
+    return header, rows
+
+
+def _ncols(header, path):
+    cols = header.get('columns')
+    if not isinstance(cols, list) or not cols:
+        raise LogFormatError('{}: header has no list of columns'.format(path))
+    return len(cols)
+
+
+def _read_v1(path, data):
+    """Format version 1: counts, header, body and one CRC-32 over them, written at the end."""
+    pre = len(MAGIC) + _V1_COUNTS.size
+    if len(data) < pre:
+        raise LogFormatError('{}: truncated: {} bytes, shorter than the fixed preamble'.format(path, len(data)))
+    _, header_len, ncols, nrows = _V1_COUNTS.unpack_from(data, len(MAGIC))
+    body_start = pre + header_len
+    expected = body_start + nrows * ncols * 8 + 4
+    if len(data) < expected:
+        raise LogFormatError('{}: truncated: {} bytes, expected {} ({} rows of {} columns)'.format(
+            path, len(data), expected, nrows, ncols))
+    if len(data) > expected:
+        raise LogFormatError('{}: {} unexpected bytes after the end of the log'.format(path, len(data) - expected))
+    (crc,) = _U32.unpack_from(data, expected - 4)
+    actual = _crc(memoryview(data)[len(MAGIC):expected - 4])
+    if crc != actual:
+        raise LogFormatError('{}: corrupted: CRC32 is {:08x}, expected {:08x}'.format(path, actual, crc))
+    header = _parse_json(data[pre:body_start], path, 'header')
+    if _ncols(header, path) != ncols:
+        raise LogFormatError('{}: header lists {} columns, body has {}'.format(path, _ncols(header, path), ncols))
+    rows = np.frombuffer(data, dtype='<f8', count=nrows * ncols, offset=body_start)
+    return header, rows.reshape(nrows, ncols).astype(float)
