@@ -134,9 +134,9 @@ def _leaves(doc, prefix=''):
             yield prefix + key, doc[key]
 
 
-def validate(config, source):
-    """Raise ConfigError naming source and field for the first problem found."""
-    f = fields.Fields(source, ConfigError)
+def validate(config, source, error=ConfigError, prefix=''):
+    """Raise error (ConfigError) naming source and field (after prefix) for the first problem found."""
+    f = fields.Fields(source, error, prefix)
     leaves = dict(_leaves(config))
     f.known(leaves, SPEC)
     f.require(leaves, sorted(SPEC))
@@ -189,10 +189,12 @@ def defaults():
     return doc
 
 
-def config_from_overrides(overrides, source='<overrides>'):
-    """Defaults with `overrides` (a dict shaped like the config, any subset) merged in."""
-    merged = _merge(defaults(), overrides, fields.Fields(source, ConfigError), '')
-    validate(merged, source)
+def config_from_overrides(overrides, source='<overrides>', error=ConfigError, prefix=''):
+    """Defaults with `overrides` (a dict shaped like the config, any subset) merged in; a bad field
+    raises error naming source and the field after prefix (a scenario's firmware_config:
+    hostsim.sim.scenario)."""
+    merged = _merge(defaults(), overrides, fields.Fields(source, error, prefix), '')
+    validate(merged, source, error, prefix)
     return merged
 
 

@@ -49,7 +49,7 @@ from hostsim.world.brick_timing import AccessTimes, BrickClock, TimedIO
 from hostsim.world.drivetrain import DrivetrainPlant
 from hostsim.world.gyro import GyroModel
 from hostsim.world.plant import Plant, apply_push
-from hostsim.sim.scenario import disturbance_at
+from hostsim.sim.scenario import disturbance_at, firmware_overrides, merged_fields
 from hostsim.world.sensors import BatteryModel, EncoderModel, SensorModel
 from tipbot_fw import config as fw_config
 from tipbot_fw import logfile
@@ -81,23 +81,9 @@ class SimulationError(TipbotError):
 
 def firmware_config(sc, rw_m, overrides=None):
     """The firmware's configuration for a scenario: defaults + what the scenario implies +
-    the scenario's firmware_config + overrides."""
-    doc = {
-        "start_pose_rad": {"th1": sc.x0_si[2], "th2": sc.x0_si[3], "th3": sc.x0_si[4]},
-        "gyro_sign": int(sc.sensors.gyro_sign),
-        "wheel_radius_m": rw_m,
-        "realtime_priority": 0,
-    }
-    doc = _merged(_merged(doc, sc.firmware_config), overrides or {})
+    the scenario's firmware_config (hostsim.sim.scenario.firmware_overrides) + overrides."""
+    doc = merged_fields(firmware_overrides(sc.x0_si, sc.sensors.gyro_sign, sc.firmware_config, rw_m), overrides or {})
     return fw_config.config_from_overrides(doc, "scenario %s, firmware_config" % sc.name)
-
-
-def _merged(base, extra):
-    """base with extra's fields in, nested objects merged field by field."""
-    out = dict(base)
-    for k, v in extra.items():
-        out[k] = _merged(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
-    return out
 
 
 def calibration_end_s(config, ts_s):

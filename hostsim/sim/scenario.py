@@ -28,7 +28,9 @@ baseline of hostsim.model.pd); each mode runs once per controller.
 effect off by default (``Brick``; realistic values, with their sources, in
 scenarios/brick_realistic.json; docs/architecture.md describes the models).
 ``firmware_config``: fields of the firmware's configuration to override (e.g. the start
-pose it is told, which the plant's x0 need not match).
+pose it is told, which the plant's x0 need not match). What the firmware will be told (x0's
+pose unless overridden, then these fields) is checked when the scenario is read, by the
+configuration's own bounds (tipbot_fw.config), and named ``firmware_config.<field>``.
 """
 import dataclasses
 import os
@@ -37,6 +39,7 @@ from typing import Optional
 from hostsim.errors import TipbotError
 from hostsim.model.params import REQUIRED
 from hostsim.paths import REPO_ROOT
+from tipbot_fw import config as fw_config
 from tipbot_fw import fields
 from tipbot_fw.plausibility import BATTERY_MAX_V, BATTERY_MIN_V
 
@@ -169,9 +172,36 @@ class Brick:
 
 
 BRICK_FIELDS = tuple(f.name for f in dataclasses.fields(Brick))
-_RANGES = ("tacho_access_s", "sensor_access_s", "compute_s", "late_wake_s", "stall_s")
-_MOTOR_LISTS = ("friction_deadband_pct", "backlash_deg")
-_FLAGS = ("encoder_truncate", "gyro_mode_timeout")
+# Physical bounds of the brick's fields: (field, kind, bound). Kinds: "range" a [lo, hi] pair
+# with 0 <= lo <= hi <= bound; "motors" four values in [0, bound]; "pair" two values in
+# [-bound, bound]; "value" one in [0, bound]; "signed" one in [-bound, bound]; "flag" true or
+# false. Far beyond the realistic values (scenarios/brick_realistic.json, ../shared/ev3-hardware.md)
+# and the margin sweep's ranges (hostsim.studies.margins), short of what is no EV3 or no test.
+BRICK_BOUNDS = (
+    ("tacho_access_s", "range", 0.005),          # one access a whole 5 ms tick: a stall, not an access
+    ("sensor_access_s", "range", 0.005),
+    ("compute_s", "range", 0.05),                # the longest period a gains file may have
+    ("cpu_steal", "value", 0.9),
+    ("late_wake_probability", "value", 1),
+    ("late_wake_s", "range", 0.05),
+    ("stall_rate_hz", "value", 10),
+    ("stall_s", "range", 1),                     # a second without control is a fall anyway
+    ("encoder_update_s", "value", 0.05),
+    ("encoder_truncate", "flag", None),
+    ("friction_deadband_pct", "motors", 100),    # the duty at 8 V that starts a free motor
+    ("backlash_deg", "motors", 90),
+    ("gyro_latency_s", "value", 0.5),
+    ("gyro_freeze_s", "value", 1),
+    ("gyro_freeze_interval_s", "value", 3600),
+    ("gyro_scale_error", "pair", 0.5),
+    ("gyro_bias_walk_dps_rt_s", "value", 10),
+    ("gyro_bias_ramp_dps_s", "signed", 1),       # 600 deg/s in the longest run: beyond the range
+    ("gyro_rate_step_dps", "value", 50),
+    ("gyro_mode_write_s", "value", 0.5),         # ten of the driver's 50 ms tries
+    ("gyro_mode_timeout", "flag", None),
+    ("battery_r_ohm", "value", 5),               # at 5 ohm one amp of the motors sags 5 V: no battery
+    ("battery_quantum_v", "value", 1),
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -224,12 +254,14 @@ STATE_BOUNDS = (10.0, 10.0, 3.2, 3.2, 3.2, 5.0, 5.0, 50.0, 50.0, 50.0)   # m, ra
 NAME_CHARS = set("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_.-")
 
 
-def _vector(f, field, value, length, bounds=None):
+def _vector(f, field, value, length, bounds=None, lo=None, hi=None):
+    """value checked as a list of length numbers, each within +-bounds[i] or [lo, hi]."""
     if not isinstance(value, list) or len(value) != length:
         f.fail(field, "must be a list of %d numbers, got %r" % (length, value))
     if bounds is None:
-        return [f.number("%s[%d]" % (field, i), v) for i, v in enumerate(value)]
-    return [f.number("%s[%d]" % (field, i), v, lo=-b, hi=b, lo_open=False) for i, (v, b) in enumerate(zip(value, bounds))]
+        bounds = [None] * length
+    return [f.number("%s[%d]" % (field, i), v, lo=lo if b is None else -b, hi=hi if b is None else b,
+                     lo_open=False) for i, (v, b) in enumerate(zip(value, bounds))]
 
 
 def parse_scenario(doc, src="<scenario>"):
@@ -300,6 +332,10 @@ def parse_scenario(doc, src="<scenario>"):
     sc["sensors"] = sensors
     sc["brick"] = _brick(f, sc["brick"])
     f.check("firmware_config", sc["firmware_config"], fields.obj)
+    if "firmware" in sc["modes"] or sc["firmware_config"]:
+        # what the firmware will be told, checked now by its own bounds (tipbot_fw.config)
+        fw_config.config_from_overrides(firmware_overrides(sc["x0_si"], sensors["gyro_sign"], sc["firmware_config"]),
+                                        src, ScenarioError, "firmware_config.")
     if sc["brick"].timed:
         for k, off in (("jitter_s", 0.0), ("extra_delay_ticks", 0)):
             if sc[k] != off:
@@ -332,46 +368,50 @@ def parse_scenario(doc, src="<scenario>"):
 
 
 def _brick(f, doc):
-    """The ``brick`` object -> Brick, every field checked."""
+    """The ``brick`` object -> Brick, every field checked against BRICK_BOUNDS."""
     f.check("brick", doc, fields.obj)
     f.known(doc, BRICK_FIELDS, "brick.")
     out = {}
-    for k, v in doc.items():
-        name = "brick." + k
-        if k == "sources":
-            f.check(name, v, fields.obj)
-            for field, text in v.items():
-                if field not in BRICK_FIELDS:
-                    f.fail("%s.%s" % (name, field), "names no brick field")
-                f.check("%s.%s" % (name, field), text, fields.nonempty_string)
-            out[k] = dict(v)
-        elif k in _FLAGS:
+    if "sources" in doc:
+        f.check("brick.sources", doc["sources"], fields.obj)
+        for field, text in doc["sources"].items():
+            if field not in BRICK_FIELDS:
+                f.fail("brick.sources." + field, "names no brick field")
+            f.check("brick.sources." + field, text, fields.nonempty_string)
+        out["sources"] = dict(doc["sources"])
+    for k, kind, bound in BRICK_BOUNDS:
+        if k not in doc:
+            continue
+        name, v = "brick." + k, doc[k]
+        if kind == "flag":
             out[k] = f.check(name, v, fields.boolean)
-        elif k in _RANGES:
-            lo, hi = _vector(f, name, v, 2)
-            if not 0 <= lo <= hi:
-                f.fail(name, "must be [lo, hi] with 0 <= lo <= hi, got %r" % (v,))
-            out[k] = (lo, hi)
-        elif k in _MOTOR_LISTS:
-            values = _vector(f, name, v, 4)
-            hi = 100 if k == "friction_deadband_pct" else 90
-            for i, x in enumerate(v):
-                f.check("%s[%d]" % (name, i), x, fields.number(lo=0, hi=hi, lo_open=False))
-            out[k] = tuple(values)
-        elif k == "gyro_scale_error":
-            values = _vector(f, name, v, 2)
-            for i, x in enumerate(v):
-                f.check("%s[%d]" % (name, i), x, fields.number(lo=-0.5, hi=0.5, lo_open=False))
-            out[k] = tuple(values)
-        elif k == "gyro_bias_ramp_dps_s":
-            out[k] = f.number(name, v)
-        elif k in ("cpu_steal", "late_wake_probability"):
-            out[k] = f.number(name, v, lo=0, hi=0.9 if k == "cpu_steal" else 1.0, lo_open=False)
-        elif k == "gyro_mode_write_s":
-            out[k] = f.number(name, v, lo=0, hi=0.5, lo_open=False)
+        elif kind in ("value", "signed"):
+            out[k] = f.number(name, v, lo=0 if kind == "value" else -bound, hi=bound, lo_open=False)
         else:
-            out[k] = f.number(name, v, lo=0, lo_open=False)
+            n, lo = (4, 0) if kind == "motors" else (2, -bound if kind == "pair" else 0)
+            out[k] = tuple(_vector(f, name, v, n, lo=lo, hi=bound))
+            if kind == "range" and out[k][0] > out[k][1]:
+                f.fail(name, "must be [lo, hi] with 0 <= lo <= hi, got %r" % (v,))
     return Brick(**out)
+
+
+def firmware_overrides(x0_si, gyro_sign, firmware_config, wheel_radius_m=None):
+    """The fields a scenario sets in the firmware's configuration (tipbot_fw.config): the start
+    pose it is held in (x0's th1..th3), its gyro's sign, the wheel radius (when given), no
+    real-time priority; then the scenario's firmware_config, field by field."""
+    doc = {"start_pose_rad": {"th1": x0_si[2], "th2": x0_si[3], "th3": x0_si[4]},
+           "gyro_sign": int(gyro_sign), "realtime_priority": 0}
+    if wheel_radius_m is not None:
+        doc["wheel_radius_m"] = wheel_radius_m
+    return merged_fields(doc, firmware_config)
+
+
+def merged_fields(base, extra):
+    """base with extra's fields in, nested objects merged field by field."""
+    out = dict(base)
+    for k, v in extra.items():
+        out[k] = merged_fields(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+    return out
 
 
 def _exactly(f, name, value, keys):
