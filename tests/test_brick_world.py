@@ -13,7 +13,7 @@ from hostsim.sim.scenario import Brick, load_scenario
 from hostsim.studies.montecarlo import gains_document
 from hostsim.world.brick_timing import AccessTimes, BrickClock, TimedIO
 from hostsim.world.fake_ev3 import GYRO_MODE_TRIES, GYRO_MODE_TRY_S, FakeEV3
-from tipbot_fw import logfile
+from tipbot_fw import feedback, logfile
 from tipbot_fw.config import defaults
 from tipbot_fw.ev3io import Ev3Devices, Ev3SetupError
 
@@ -76,6 +76,48 @@ def test_each_read_samples_the_world_at_its_own_moment_and_the_compute_is_charge
             assert w == pytest.approx([0.0027, 0.0031, 0.0035, 0.0039])   # four moments, 0.4 ms apart
         finally:
             dev.close()
+
+
+def test_the_lights_and_the_speaker_cost_brick_time():
+    # tipbot_fw.feedback's writes in the loop's slack go through the timed I/O like the duties:
+    # each costs a sensor-class access, and the fake EV3 shows what was written
+    brick = Brick(tacho_access_s=(0.0004, 0.0004), sensor_access_s=(0.0001, 0.0001))
+    world = _Recorder()
+    with FakeEV3() as fake:
+        clock = BrickClock()
+        io = TimedIO(fake.io, fake, clock, world, AccessTimes(brick, np.random.default_rng(0)))
+        signals = feedback.BrickSignals(fake.sysfs_root, io=io, now=clock.now)
+        try:
+            t0 = clock.now()
+            for target, value in ((1, 255), (3, 255), ("tone", 1047)):
+                signals.apply(target, value)
+            assert clock.now() - t0 == pytest.approx(0.0003)
+            assert [rel.rsplit("/", 2)[-2] for rel, _ in world.writes[-3:]] == [
+                "led0:green:brick-status", "led1:green:brick-status", "input-by-path"]
+            assert fake.lights() == {"left": "green", "right": "green"}
+            assert [hz for _, hz in fake.tones()] == [1047]
+            assert fake.tones()[0][0] == pytest.approx(t0 + 0.0002)     # the writer's clock: virtual
+        finally:
+            signals.close()
+
+
+def test_a_timed_run_gives_the_loops_cues_on_the_fake_brick():
+    # the let-go melody's rest and 'balancing' come from the loop's side task, each a timed write
+    # (hostsim.sim.fil.SlackCues); the writes land between the loop's ticks
+    run = run_firmware(scenario(duration_s=1.5, tacho_access_s=(0.0002, 0.0002)), gains_doc=kw0())
+    assert run.completed
+    tones, lights = [], []
+    for k, ops in enumerate(run.io_per_iteration):
+        for op, rel, data in ops:
+            if "sound" in rel:
+                tones.append((k, feedback.INPUT_EVENT.unpack(data)[-1]))
+            elif "leds/" in rel:
+                lights.append((k, rel.split("/")[1], data))
+    # the let-go melody's second and third notes and its end, then 'balancing' after 1 s (200
+    # ticks): the left light's red off (amber -> green), then its note (one write a call)
+    assert [hz for _, hz in tones] == [659, 784, 0, 1047, 0]
+    assert [(rel, data) for _, rel, data in lights] == [("led0:red:brick-status", b"0\n")]
+    assert 190 < lights[0][0] < tones[3][0] < 210
 
 
 def test_every_duty_lands_at_its_own_moment_in_the_tick():

@@ -18,7 +18,9 @@ With a scenario's ``brick`` effects on (hostsim.sim.scenario.Brick), the world i
 hostsim.sim.brick_world.BrickWorld instead: the same plant on a 1 ms grid with the
 drivetrain, the sensors' and the battery's imperfections and, with the brick's timing, every
 sysfs access at its own moment (hostsim.world.brick_timing); the brick's timing needs the
-fake EV3 tree (``sysfs=True``).
+fake EV3 tree (``sysfs=True``). With the timing, the firmware's cues in its loop (lights and
+tones in the slack after the writes) are given on the fake's lights and speaker, and cost
+brick time as on the brick (SlackCues); otherwise the run is quiet.
 
 Start: like a person holding the robot, the world keeps the plant at the scenario's start
 pose while the firmware calibrates the gyro (about 1.1 s, with the scenario's gyro bias and
@@ -56,7 +58,9 @@ from tipbot_fw import logfile
 from tipbot_fw.calibration import sample_counts
 from tipbot_fw.clock import VirtualClock
 from tipbot_fw.cues import QUIET as QUIET_CUES
+from tipbot_fw.cues import OwnerCues
 from tipbot_fw.devices import MemoryDevices
+from tipbot_fw.feedback import BrickSignals
 from tipbot_fw.config import MOTOR_ROLES
 from tipbot_fw.gains import ACTUATED_INPUTS, gains_from_dict, load_gains
 from tipbot_fw.safety import DevicesMissing
@@ -77,6 +81,21 @@ STREAM_TIMING, STREAM_GYRO = 1, 2
 
 class SimulationError(TipbotError):
     """A scenario the firmware-in-the-loop simulation cannot run as asked."""
+
+
+class SlackCues(OwnerCues):
+    """The owner's cues the firmware gives inside its loop (the rest of the let-go melody,
+    'balancing', a battery warning: tipbot_fw.cues.LoopCues, a side task in the slack after
+    the writes), on the fake EV3's lights and speaker through the brick's timed I/O, so that
+    they cost brick time as on the brick. The blocking light-and-melody shows before the
+    calibration and after the stop are left out: they are outside the loop, and the run's
+    record ends where the firmware's does."""
+
+    def __init__(self, signals):
+        OwnerCues.__init__(self, streams=(), brick=signals)
+
+    def _signal(self, state):
+        pass
 
 
 def firmware_config(sc, rw_m, overrides=None):
@@ -286,12 +305,17 @@ def run_firmware(sc, gains_path=None, gains_doc=None, sysfs=True, log_path=None,
             devices = MemoryDevices(source=world.read, battery_v=world.battery_reading)
             world.devices = devices
         if devices is not None:
+            cues = QUIET_CUES
+            if brick.timed:       # the loop's lights and tones cost brick time (brick_timing)
+                cues = SlackCues(BrickSignals(fake.sysfs_root, io=io, now=clock.now,
+                                              sleep=lambda s: clock.sleep_until(clock.now() + s)))
             if isinstance(world, BrickWorld):
                 world.start_at(clock.t)   # a blocking set-up (the gyro's mode write) took this long
             try:
                 code, header = run_session(devices, gains, config, clock, log=log,
-                                           duration_s=sc.duration_s, say=lambda msg: None, cues=QUIET_CUES)
+                                           duration_s=sc.duration_s, say=lambda msg: None, cues=cues)
             finally:
+                cues.close()
                 devices.close()
             rows = logfile.read_log(log_path)[1] if keep_rows and os.path.exists(log_path) else None
     finally:

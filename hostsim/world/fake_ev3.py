@@ -47,8 +47,8 @@ writer may see half of each. So:
 
 Counting and failure injection
 ------------------------------
-:class:`CountingIO` has the ``open/pread/pwrite/close`` API of :mod:`os` (what Ev3Devices takes
-as ``io``), counts calls per path and can make chosen calls raise ``OSError``; ``fake.io`` is one
+:class:`CountingIO` has the ``open/pread/pwrite/write/close`` API of :mod:`os` (what Ev3Devices
+and the lights and speaker of tipbot_fw.feedback take as ``io``), counts calls per path and can make chosen calls raise ``OSError``; ``fake.io`` is one
 bound to this tree. It is an in-process add-on only: the files remain the truth.
 """
 
@@ -145,9 +145,9 @@ class FakeEV3Error(Exception):
 
 
 class CountingIO(object):
-    """``os``-compatible open/pread/pwrite/close that counts calls and can inject failures.
+    """``os``-compatible open/pread/pwrite/write/close that counts calls and can inject failures.
 
-    ``reads``/``writes`` count pread/pwrite calls (failed ones too: they were attempted);
+    ``reads``/``writes`` count pread and pwrite/write calls (failed ones too: they were attempted);
     ``by_path`` counts them per (op, path relative to ``root``); ``log`` lists
     (op, relpath, bytes written or bytes read). ``open_fds`` maps the fds still open to paths.
     """
@@ -172,9 +172,9 @@ class CountingIO(object):
         return path
 
     def fail(self, relpath, op='pread', err=errno.ENODEV):
-        """Make every ``op`` ('pread', 'pwrite' or 'open') on ``relpath`` raise OSError(err)."""
-        if op not in ('pread', 'pwrite', 'open'):
-            raise ValueError('op must be pread, pwrite or open, not %r' % (op,))
+        """Make every ``op`` ('pread', 'pwrite', 'write' or 'open') on ``relpath`` raise OSError(err)."""
+        if op not in ('pread', 'pwrite', 'write', 'open'):
+            raise ValueError('op must be pread, pwrite, write or open, not %r' % (op,))
         self._failures[(op, relpath)] = err
 
     def clear_failures(self):
@@ -209,13 +209,22 @@ class CountingIO(object):
         self._maybe_fail('pwrite', rel)
         return os.pwrite(fd, data, offset)
 
+    def write(self, fd, data):
+        """write(2), for what has no offset (the speaker's input device: tipbot_fw.feedback)."""
+        rel = self.open_fds.get(fd, '<fd %d>' % fd)
+        self.writes += 1
+        self.by_path[('write', rel)] += 1
+        self.log.append(('write', rel, bytes(data)))
+        self._maybe_fail('write', rel)
+        return os.write(fd, data)
+
     def close(self, fd):
         self.open_fds.pop(fd, None)
         os.close(fd)
 
     def writes_to(self, suffix):
         """The bytes written (in order) to paths ending with ``suffix``, from the log."""
-        return [data for op, rel, data in self.log if op == 'pwrite' and rel.endswith(suffix)]
+        return [data for op, rel, data in self.log if op in ('pwrite', 'write') and rel.endswith(suffix)]
 
 
 class _Attr(object):
