@@ -87,3 +87,13 @@ def test_region_of_attraction_bisection_on_the_nonlinear_model():
         assert max(ok) == pytest.approx(r["max_recovered_rad"])
         assert min(bad) - max(ok) <= 0.04 + 1e-12
     assert "th1 -/+ rad" in roa.format_table(res)
+
+
+def test_region_of_attraction_in_the_firmware_stops_at_its_stop_limit():
+    # the bisection tries the firmware's stop limit first: a start pose the firmware refuses to be
+    # told (tipbot_fw.config) counts as not recovered, and just inside it the firmware runs
+    base = load_scenario("roa_base")
+    limit = roa.angle_limits()["th1"]
+    assert roa.trial(base, "gains/physical.json", False, "firmware", "th1", limit) is False
+    assert roa.trial(base, "gains/physical.json", False, "firmware", "th1", -limit) is False
+    assert roa.trial(base, "gains/physical.json", False, "firmware", "th1", 0.05) is True

@@ -59,6 +59,8 @@ def trial(base, gains_path, zero_kw, mode, angle, value):
     doc = gains_document(gains_path, zero_kw)
     if mode == "nonlinear":
         run = simulate_nonlinear(gains_from_dict(doc, gains_path), sc)
+    elif abs(value) >= angle_limits()[angle]:
+        return False    # the firmware refuses to be told a start pose at its stop limit (tipbot_fw.config)
     else:
         run = run_firmware(sc, gains_doc=doc, sysfs=False, keep_rows=False)
     return recovered(run)
