@@ -68,8 +68,16 @@ def _style(label, solo=False):
                 alpha=1.0 if solo else MODE_ALPHA.get(mode, 1.0))
 
 
-def _shade(ax, sc):
-    end = sc.duration_s
+def _time_end(sc, runs):
+    """The time axis' end: the scenario's duration, unless every run stopped before half of it
+    (the firmware's safe stops): then a little past the last one's end, which would otherwise
+    be a smear at the left edge (a stop after 0.2 s of a 30 s scenario)."""
+    last = max([float(r.t_s[-1]) for r in runs.values() if len(r.t_s)] or [sc.duration_s])
+    return sc.duration_s if last > 0.5 * sc.duration_s else max(1.05 * last, 0.05)
+
+
+def _shade(ax, sc, runs):
+    end = _time_end(sc, runs)
     for d in sc.disturbances:
         if any(d.w_v) and d.t_start_s < end:
             ax.axvspan(d.t_start_s, min(d.t_end_s, end), color="0.88", zorder=0)
@@ -102,7 +110,7 @@ def _write(fig, path):
 def _state_panels(axes, sc, runs, idx, estimates=False, errors=False, solo=False):
     for p, i in enumerate(idx):
         ax = axes.flat[p]
-        _shade(ax, sc)
+        _shade(ax, sc, runs)
         for label, run in runs.items():
             st = _style(label, solo)
             if errors:
@@ -245,7 +253,7 @@ def inputs(sc, runs, u_max_v, path):
     ts_s = np.diff(next(iter(runs.values())).t_s[:2])[0]
     for p, (i, name) in enumerate(INPUT_LABELS):
         ax = axes.flat[p]
-        _shade(ax, sc)
+        _shade(ax, sc, runs)
         for label, run in runs.items():
             st = _style(label)
             ax.plot(run.t_s, run.u[:, i], label=label, **st)
@@ -282,7 +290,7 @@ def compare_controllers(sc, runs, mode, u_max_v, path):
     _state_panels(axes[:5].T, sc, pair, range(10), solo=True)
     for p, (i, name) in enumerate(INPUT_LABELS):
         ax = axes[5 + p // 2, p % 2]
-        _shade(ax, sc)
+        _shade(ax, sc, pair)
         for label, run in pair.items():
             ax.plot(run.t_s, run.u[:, i], label=label, **_style(label, solo=True))
         for s in (-1, 1):
