@@ -62,7 +62,7 @@ class Margin:
 
 MARGINS = (
     Margin("backlash", "backlash", "deg", "3 (Large), 0.5 (Medium)", 3.0, 20.0, 0.25),
-    Margin("io_delay", "I/O delay", "ms", "2-4.5 (each duty at its write)", 4.5, 60.0, 0.25),
+    Margin("io_delay", "I/O delay", "ms", "2.8-4.6 (each duty at its write)", 4.6, 60.0, 0.25),
     Margin("deadband", "dead band", "%", "4 (Large), 10 (Medium)", 4.0, 40.0, 0.5),
     Margin("gyro_drift", "gyro drift", "deg/s^2", "0.002 (an assumption)", 0.002, 0.1, 0.001, (1, -1)),
     Margin("push", "push on link 3", "N s", "-", None, 2.0, 0.01, (1, -1)),
