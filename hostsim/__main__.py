@@ -19,6 +19,7 @@ COMMANDS = {
     "sim": ("hostsim.studies.sim_study", "the paper's scenarios + robustness summary -> out/sim/ (make sim)"),
     "montecarlo": ("hostsim.studies.montecarlo", "Monte Carlo robustness of the firmware in the loop"),
     "roa": ("hostsim.studies.roa", "region of attraction (largest recovered initial angles)"),
+    "margins": ("hostsim.studies.margins", "how much of each brick imperfection the robot takes; what each costs"),
     "bench-sim": ("hostsim.studies.sim_bench", "simulation speed: real-time factor, Monte Carlo throughput"),
     "replay": ("hostsim.logs.replay", "replay a robot log on the host (make replay)"),
     "identify": ("hostsim.logs.identify", "identify motor parameters from identify logs"),

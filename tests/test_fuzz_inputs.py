@@ -15,7 +15,7 @@ import fw_support as S
 from conftest import PARAMS_FILE, PHYSICAL_GAINS, REPO
 from hostsim.errors import ParameterError
 from hostsim.model.params import load_params
-from hostsim.sim.scenario import ScenarioError, load_scenario
+from hostsim.sim.scenario import BRICK_BOUNDS, ScenarioError, load_scenario
 from tipbot_fw import logfile
 from tipbot_fw.config import ConfigError, load_config
 from tipbot_fw.gains import GainsError, load_gains
@@ -96,6 +96,8 @@ with open(PARAMS_FILE) as f:
     PARAMS = json.load(f)
 with open(os.path.join(REPO, 'scenarios', 'section8_physical.json')) as f:
     SCENARIO = json.load(f)
+with open(os.path.join(REPO, 'scenarios', 'brick_realistic.json')) as f:
+    BRICK_SCENARIO = json.load(f)     # the unkind brick's fields and a firmware_config
 CONFIG = {'limits': {'th1_rad': 0.5}, 'filters': {'gyro_rate_cutoff_hz': 20.0}, 'wheel_radius_m': 0.034,
           'ports': {'gyro': 'in2'}, 'gyro_calibration': {'duration_s': 1.0}}
 
@@ -103,7 +105,8 @@ CONFIG = {'limits': {'th1_rad': 0.5}, 'filters': {'gyro_rate_cutoff_hz': 20.0}, 
 @pytest.mark.parametrize('doc, under, reader, error', [
     (GAINS, (), load_gains, GainsError), (GAINS, ('kalman',), load_gains, GainsError),
     (CONFIG, (), load_config, ConfigError), (SCENARIO, (), load_scenario, ScenarioError),
-    (PARAMS, (), load_params, ParameterError)], ids=['gains', 'gains-kalman-block', 'config', 'scenario', 'parameters'])
+    (BRICK_SCENARIO, (), load_scenario, ScenarioError), (PARAMS, (), load_params, ParameterError)],
+    ids=['gains', 'gains-kalman-block', 'config', 'scenario', 'brick scenario', 'parameters'])
 @FUZZ
 @given(data=st.data())
 def test_each_file_format_with_one_field_fuzzed(tmp_path, doc, under, reader, error, data):
@@ -180,11 +183,61 @@ def test_the_log_reader_on_any_bytes(tmp_path, raw):
             one_line_error(path, e)
 
 
+numbers = st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.integers(-10 ** 6, 10 ** 6),
+                    st.sampled_from([0, 0.0005, 0.005, 0.0051, 1, 1.0001, 90, 100, 101, 3600, 1e300, -1e-300]))
+
+
+@FUZZ
+@given(data=st.data())
+def test_brick_fields_take_only_physical_values(tmp_path, data):
+    # every brick field (hostsim.sim.scenario.BRICK_BOUNDS) with any value: refused naming the
+    # field, or accepted and within its bound (a range ordered, a sign only where it has one)
+    field, kind, bound = data.draw(st.sampled_from(BRICK_BOUNDS))
+    n = {'range': 2, 'pair': 2, 'motors': 4}.get(kind)
+    value = data.draw(st.one_of(values, st.lists(numbers, min_size=n, max_size=n) if n else numbers))
+    path = tmp_path / 'b.json'
+    path.write_text(text_of({'modes': ['firmware'], 'brick': {field: value}}))
+    try:
+        sc = load_scenario(str(path))
+    except ScenarioError as e:
+        one_line_error(path, e)
+        assert ': field ' not in str(e) or str(e).startswith('%s: field brick.%s' % (path, field)), str(e)
+        return
+    got = getattr(sc.brick, field)
+    if kind == 'flag':
+        assert isinstance(got, bool)
+        return
+    got = list(got) if n else [got]
+    lo = -bound if kind in ('pair', 'signed') else 0
+    assert all(lo <= v <= bound for v in got), got
+    if kind == 'range':
+        assert got[0] <= got[1]
+
+
+@FUZZ
+@given(data=st.data())
+def test_what_a_scenario_tells_the_firmware_is_checked_when_read(tmp_path, data):
+    # a scenario's firmware_config, fuzzed where a config is: refused naming firmware_config.<field>
+    # (or, for what JSON cannot hold, the place in the file), or what the simulation builds from it
+    # is a configuration the firmware accepts
+    from hostsim.sim.fil import firmware_config
+    path = tmp_path / 'b.json'
+    path.write_text('{"modes": ["firmware"], "firmware_config": %s}' % mutate(CONFIG, data))
+    try:
+        sc = load_scenario(str(path))
+    except ScenarioError as e:
+        one_line_error(path, e)
+        assert ': field ' not in str(e) or str(e).startswith('%s: field firmware_config' % path), str(e)
+        return
+    assert firmware_config(sc, 0.034)['ports']['gyro'] in ('in1', 'in2', 'in3', 'in4')
+
+
 def test_the_fuzzed_good_files_are_accepted():
     # not vacuous: the documents the fuzzers mutate are valid as they are
     assert load_gains(PHYSICAL_GAINS).ts_s == 0.005
     assert load_params(PARAMS_FILE)['rw_m'] == 0.034
     assert np.isfinite(load_scenario(os.path.join(REPO, 'scenarios', 'section8_physical.json')).duration_s)
+    assert load_scenario(os.path.join(REPO, 'scenarios', 'brick_realistic.json')).brick.timed
 
 
 def _log_with(path, header_text, rows):

@@ -1,6 +1,6 @@
 """What the report's figures and tables show (hostsim.studies.plots, hostsim.studies.runner): captions cite the
 paper's figure of their own scenario only, the whole input demand is on the figure, short
-transients get an inset, stop limits are marked, axes and columns carry units."""
+transients get an inset, a run stopped early fills the time axis, stop limits are marked, axes and columns carry units."""
 import dataclasses
 
 import numpy as np
@@ -85,6 +85,17 @@ def test_a_transient_of_a_few_ticks_gets_an_inset(figures):
     slow = {k: dataclasses.replace(v, xhat=v.x + 0.01 * np.exp(-v.t_s)[:, None]) for k, v in runs.items()}
     plots.estimation_errors(sc, slow, "errors.png")
     assert not [a for a in figures[1].axes if a.child_axes]
+
+
+def test_a_run_stopped_early_fills_the_time_axis(figures):
+    # the firmware's safe stop after 0.2 s of a 30 s scenario (the realistic brick's overruns):
+    # the axis ends just past the stop, not at 30 s; a run that goes on keeps the whole duration
+    sc = parse_scenario({"duration_s": 30.0}, "<test>")
+    runs = section7_like_runs(n=40)
+    plots.states_estimates(sc, runs, "states.png")
+    assert figures[0].axes[0].get_xlim() == pytest.approx((0, 1.05 * 39 * 0.005))
+    plots.states_estimates(parse_scenario({"duration_s": 4.0}, "<test>"), section7_like_runs(), "states.png")
+    assert figures[1].axes[0].get_xlim() == pytest.approx((0, 4.0))
 
 
 def test_region_of_attraction_bars_at_the_stop_limit_are_marked(figures):

@@ -15,15 +15,21 @@ from conftest import gains_path
 VARIANTS = ("paper", "physical")
 
 
+def random_state(rng):
+    """A state and inputs (u_th1 = 0) far and wide around the upright."""
+    x = list(rng.normal(size=10) * [0.3, 0.3, 1, 1, 1, 1, 1, 3, 3, 3])
+    u = list(rng.normal(size=5) * 5)
+    u[2] = 0.0
+    return x, u
+
+
 @pytest.mark.parametrize("variant", VARIANTS)
 def test_compiled_derivative_is_bit_identical(variant, params):
     model = RobotModel(variant, params)
     deriv, pre = fastdyn.compile_model(model)
     rng = np.random.default_rng(3)
     for _ in range(300):
-        x = list(rng.normal(size=10) * [0.3, 0.3, 1, 1, 1, 1, 1, 3, 3, 3])
-        u = list(rng.normal(size=5) * 5)
-        u[2] = 0.0
+        x, u = random_state(rng)
         m, f = model.mass_matrix_forcing(x[:5], x[5:], u)
         assert deriv(x, u, pre) == x[5:] + solve_spd5(m, f)
 
@@ -56,3 +62,25 @@ def test_heun_matches_rk4_closely(variant):
     angles, rates = HEUN_BOUNDS[variant]
     assert err[2:5].max() < angles
     assert err[7:].max() < rates
+
+
+def test_extended_derivative_adds_to_m_and_f_and_solves_extra_right_hand_sides(params):
+    """deriv_ext (hostsim.world.drivetrain's): with nothing added it is deriv, bit for bit; with
+    additions it solves (M + dM) q'' = F + dF and (M + dM) z = r for each extra r."""
+    model = RobotModel("physical", params)
+    deriv, pre = fastdyn.compile_model(model)
+    ext, pre_ext = fastdyn.compile_model_ext(model)
+    rng = np.random.default_rng(5)
+    for _ in range(50):
+        x, u = random_state(rng)
+        assert ext(x, u, pre_ext, [0.0] * 20, []) == deriv(x, u, pre)
+        e = list(np.abs(rng.normal(size=20)) * 1e-5)
+        rhs = [list(rng.normal(size=5)), [0.0, 0.0, 0.0, 1.0, 0.0]]
+        m, f = model.mass_matrix_forcing(x[:5], x[5:], u)
+        low = np.zeros((5, 5))
+        low[np.tril_indices(5)] = e[:15]
+        mx = np.array(m).reshape(5, 5) + low + np.tril(low, -1).T
+        out = ext(x, u, pre_ext, e, rhs)
+        assert np.allclose(out[5:10], np.linalg.solve(mx, np.array(f) + e[15:]), rtol=1e-10, atol=1e-12)
+        for j, r in enumerate(rhs):
+            assert np.allclose(out[10 + 5 * j:15 + 5 * j], np.linalg.solve(mx, r), rtol=1e-10, atol=1e-12)

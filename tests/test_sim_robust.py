@@ -42,6 +42,28 @@ def test_montecarlo_draws_stay_in_their_ranges():
     assert max(d["jitter_s"] for d in draws) <= 0.001
 
 
+def test_montecarlo_draws_the_bricks_effects_around_their_realistic_values():
+    brick = load_scenario(montecarlo.BRICK_SCENARIO).brick
+    rng = np.random.default_rng(0)
+    draws = [montecarlo.draw(rng, brick) for _ in range(300)]
+    plain = [montecarlo.draw(np.random.default_rng(0)) for _ in range(1)][0]
+    # the brick is drawn after today's perturbations, which stay the same
+    assert {k: v for k, v in draws[0].items() if k not in ("brick", "extra_delay_ticks", "jitter_s")} == \
+        {k: v for k, v in plain.items() if k not in ("extra_delay_ticks", "jitter_s")}
+    assert {d["extra_delay_ticks"] for d in draws} == {0} and {d["jitter_s"] for d in draws} == {0.0}
+    back = np.array([d["brick"]["backlash_deg"] for d in draws])
+    assert np.all(back >= 0.5 * np.array(brick.backlash_deg)) and np.all(back <= 1.5 * np.array(brick.backlash_deg))
+    ramp = [d["brick"]["gyro_bias_ramp_dps_s"] for d in draws]
+    assert min(ramp) < 0 < max(ramp) and max(abs(r) for r in ramp) <= 1.5 * brick.gyro_bias_ramp_dps_s
+    senses = {tuple(v != 0 for v in d["brick"]["gyro_scale_error"]) for d in draws}
+    assert senses == {(True, False), (False, True)}
+    r = [d["brick"]["battery_r_ohm"] for d in draws]
+    assert 0.1 <= min(r) and max(r) <= 0.3
+    sc = montecarlo.scenario_for(load_scenario(montecarlo.BRICK_SCENARIO), draws[0], 2.0)
+    assert sc.brick.backlash_deg == tuple(draws[0]["brick"]["backlash_deg"]) and sc.brick.timed
+    assert sc.firmware_config["start_pose_rad"]["th1"] == 0.0
+
+
 def test_montecarlo_with_kw_zeroed_balances_the_perturbed_robots():
     """With w^ out of the loop the firmware must survive the stated uncertainty (a few runs)."""
     res = montecarlo.run_montecarlo(runs=4, duration_s=3.0, gains_paths=("gains/physical.json",), kw0=True,
@@ -65,3 +87,13 @@ def test_region_of_attraction_bisection_on_the_nonlinear_model():
         assert max(ok) == pytest.approx(r["max_recovered_rad"])
         assert min(bad) - max(ok) <= 0.04 + 1e-12
     assert "th1 -/+ rad" in roa.format_table(res)
+
+
+def test_region_of_attraction_in_the_firmware_stops_at_its_stop_limit():
+    # the bisection tries the firmware's stop limit first: a start pose the firmware refuses to be
+    # told (tipbot_fw.config) counts as not recovered, and just inside it the firmware runs
+    base = load_scenario("roa_base")
+    limit = roa.angle_limits()["th1"]
+    assert roa.trial(base, "gains/physical.json", False, "firmware", "th1", limit) is False
+    assert roa.trial(base, "gains/physical.json", False, "firmware", "th1", -limit) is False
+    assert roa.trial(base, "gains/physical.json", False, "firmware", "th1", 0.05) is True

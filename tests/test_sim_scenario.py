@@ -65,6 +65,39 @@ def test_section7_is_the_printed_initial_state_in_si():
      "field expect.linear/pd names no run of this scenario (runs: firmware/optimal, linear/optimal)"),
     ({"expect": {"linear/optimal": {"max_th": 1}}}, "field expect.linear/optimal.max_th is unknown"),
     ({"expect": {"linear/optimal": {"upright": 1}}}, "field expect.linear/optimal.upright must be true or false, got 1"),
+    ({"pushes": [{"t_s": 1, "link": 4, "impulse_n_s": 0.1}]}, "field pushes[0].link must be one of 1, 2, 3, got 4"),
+    ({"brick": {"backlash": [3, 3, 3, 0]}}, "field brick.backlash is unknown"),
+    ({"brick": {"backlash_deg": [3, 3, 3]}}, "field brick.backlash_deg must be a list of 4 numbers, got [3, 3, 3]"),
+    ({"brick": {"friction_deadband_pct": [4, 4, -4, 10]}},
+     "field brick.friction_deadband_pct[2] must be a number in [0, 100], got -4"),
+    ({"brick": {"tacho_access_s": [0.0005, 0.0003]}},
+     "field brick.tacho_access_s must be [lo, hi] with 0 <= lo <= hi, got [0.0005, 0.0003]"),
+    ({"brick": {"gyro_scale_error": [-0.02, 0.7]}}, "field brick.gyro_scale_error[1] must be a number in [-0.5, 0.5], got 0.7"),
+    ({"brick": {"encoder_truncate": 1}}, "field brick.encoder_truncate must be true or false, got 1"),
+    ({"brick": {"sources": {"backlash": "x"}}}, "field brick.sources.backlash names no brick field"),
+    ({"brick": {"compute_s": [0.0007, 0.0009]}, "jitter_s": 0.001},
+     "field jitter_s must be 0.0 with the brick's timing (brick.*_access_s, compute_s, late wakes, stalls replace it)"),
+    ({"brick": {"compute_s": [0.0007, 0.0009]}, "io_latency_s": 0.002},
+     "field io_latency_s does not apply with the brick's timing (each duty lands at its own write)"),
+    ({"firmware_config": []}, "field firmware_config must be an object, got []"),
+    # physical bounds of the brick's fields, the impulse pushes and what the firmware is told
+    ({"brick": {"stall_s": [0.01, 2]}}, "field brick.stall_s[1] must be a number in [0, 1], got 2"),
+    ({"brick": {"tacho_access_s": [0.0003, 0.05]}},
+     "field brick.tacho_access_s[1] must be a number in [0, 0.005], got 0.05"),
+    ({"brick": {"gyro_bias_ramp_dps_s": 1e300}},
+     "field brick.gyro_bias_ramp_dps_s must be a number in [-1, 1], got 1e+300"),
+    ({"brick": {"backlash_deg": [3, 3, 3, float("nan")]}},
+     "field brick.backlash_deg[3] must be a number in [0, 90], got nan"),
+    ({"brick": {"battery_r_ohm": -0.2}}, "field brick.battery_r_ohm must be a number in [0, 5], got -0.2"),
+    ({"pushes": [{"t_s": 1, "link": 3, "impulse_n_s": 1e300}]},
+     "field pushes[0].impulse_n_s must be a number in [-5.0, 5.0], got 1e+300"),
+    ({"firmware_config": {"colour": "red"}}, "field firmware_config.colour is unknown"),
+    ({"firmware_config": {"limits": 3}}, "field firmware_config.limits must be an object, got 3"),
+    ({"firmware_config": {"limits": {"max_consecutive_overruns": 1000}}},
+     "field firmware_config.limits.max_consecutive_overruns must be an integer in [1, 100], got 1000"),
+    ({"x0_si": [0, 0, 0.7, 0, 0, 0, 0, 0, 0, 0]},
+     "field firmware_config.start_pose_rad.th1 is 0.7 rad, beyond limits.th1_rad = 0.6: the run would stop at its "
+     "first tick"),
 ])
 def test_malformed_fields_are_named(doc, message):
     with pytest.raises(ScenarioError, match="^" + re.escape("bad.json: " + message) + "$"):
@@ -79,3 +112,13 @@ def test_load_scenario_names_the_file_for_bad_json(tmp_path):
     p.write_text(json.dumps({"modes": ["firmware"], "colour": "red"}))
     with pytest.raises(ScenarioError, match="broken.json: field colour is unknown$"):
         load_scenario(str(p))
+
+
+def test_firmware_config_is_checked_only_for_what_the_firmware_is_told():
+    # a linear-only scenario may start beyond the firmware's stop limits; told another pose, so may
+    # a firmware run (the brick_realistic way: released tilted, told upright)
+    tilted = [0, 0, 0.7, 0, 0, 0, 0, 0, 0, 0]
+    assert parse_scenario({"x0_si": tilted, "modes": ["linear"]}, "ok.json").x0_si[2] == 0.7
+    sc = parse_scenario({"x0_si": tilted, "firmware_config": {"start_pose_rad": {"th1": 0.0}}}, "ok.json")
+    assert sc.firmware_config == {"start_pose_rad": {"th1": 0.0}}
+

@@ -69,6 +69,9 @@ _one_of = fields.one_of
 _SIGN = _one_of(1, -1)
 _MOTOR_PORT = _one_of('outA', 'outB', 'outC', 'outD')
 
+# The most late ticks in a row a configuration may allow (0.5 s at 5 ms) before the safe stop.
+MAX_CONSECUTIVE_OVERRUNS = 100
+
 # Leaf validators by dotted path; the set of paths is also the set of allowed fields.
 SPEC = {
     'ports.right_wheel': _MOTOR_PORT,
@@ -97,7 +100,7 @@ SPEC = {
     'limits.th3_rad': _number(0, 3.2),
     'limits.min_battery_v': _number(5.0, 9.0, lo_open=False),   # within what a battery reads (plausibility)
     'limits.warn_battery_v': _number(5.0, 9.0, lo_open=False),  # and not below min_battery_v: validate()
-    'limits.max_consecutive_overruns': _number(1, 100, lo_open=False, integer=True),
+    'limits.max_consecutive_overruns': _number(1, MAX_CONSECUTIVE_OVERRUNS, lo_open=False, integer=True),
     'filters.encoder_rate_cutoff_hz': _number(0.5, 500, lo_open=False),   # and below Nyquist: check_config_against_gains
     'filters.gyro_rate_cutoff_hz': _number(0.5, 500, lo_open=False),
     'filters.disturbance_cutoff_hz': _number(0.01, 100, lo_open=False, allow_null=True),
@@ -136,9 +139,9 @@ def _leaves(doc, prefix=''):
             yield prefix + key, doc[key]
 
 
-def validate(config, source):
-    """Raise ConfigError naming source and field for the first problem found."""
-    f = fields.Fields(source, ConfigError)
+def validate(config, source, error=ConfigError, prefix=''):
+    """Raise error (ConfigError) naming source and field (after prefix) for the first problem found."""
+    f = fields.Fields(source, error, prefix)
     leaves = dict(_leaves(config))
     f.known(leaves, SPEC)
     f.require(leaves, sorted(SPEC))
@@ -191,10 +194,12 @@ def defaults():
     return doc
 
 
-def config_from_overrides(overrides, source='<overrides>'):
-    """Defaults with `overrides` (a dict shaped like the config, any subset) merged in."""
-    merged = _merge(defaults(), overrides, fields.Fields(source, ConfigError), '')
-    validate(merged, source)
+def config_from_overrides(overrides, source='<overrides>', error=ConfigError, prefix=''):
+    """Defaults with `overrides` (a dict shaped like the config, any subset) merged in; a bad field
+    raises error naming source and the field after prefix (a scenario's firmware_config:
+    hostsim.sim.scenario)."""
+    merged = _merge(defaults(), overrides, fields.Fields(source, error, prefix), '')
+    validate(merged, source, error, prefix)
     return merged
 
 

@@ -106,12 +106,14 @@ class BrickSignals(object):
     """The status lights and the speaker of the brick whose sysfs tree is at sysfs_root.
 
     ``problems``: one line per light or speaker that could not be opened or written (then left
-    alone). ``sleep`` and ``now`` time the notes of show().
+    alone). ``sleep`` and ``now`` time the notes of show(). ``io``: open/write/pwrite/close with
+    the API of :mod:`os` (as tipbot_fw.ev3io takes one: a simulation times each write).
     """
 
-    def __init__(self, sysfs_root=SYSFS_ROOT, sound_path=None, sleep=time.sleep, now=time.monotonic):
+    def __init__(self, sysfs_root=SYSFS_ROOT, sound_path=None, sleep=time.sleep, now=time.monotonic, io=os):
         self.sleep = sleep
         self.now = now
+        self.io = io
         self.problems = []
         self.led_fds = []
         self.on = []
@@ -130,7 +132,7 @@ class BrickSignals(object):
 
     def _open(self, path, flags, what):
         try:
-            return os.open(path, flags)
+            return self.io.open(path, flags)
         except OSError as e:
             self.problems.append('{}: cannot open {}: {}'.format(what, path, e.strerror or e))
             return -1
@@ -139,11 +141,11 @@ class BrickSignals(object):
         """A kernel trigger (brickman's heartbeat or timer) would keep blinking over what is
         written: turn it off (a write of 0 to brightness would too, but not one of 255)."""
         try:
-            fd = os.open(os.path.join(path, 'trigger'), os.O_WRONLY)
+            fd = self.io.open(os.path.join(path, 'trigger'), os.O_WRONLY)
             try:
-                os.write(fd, b'none\n')
+                self.io.write(fd, b'none\n')
             finally:
-                os.close(fd)
+                self.io.close(fd)
         except OSError as e:
             self.problems.append('light: cannot turn off the trigger of {}: {}'.format(path, e.strerror or e))
 
@@ -174,7 +176,7 @@ class BrickSignals(object):
                 return
             t = self.now()
             try:
-                os.write(self.tone_fd, INPUT_EVENT.pack(int(t), int((t % 1.0) * 1e6), EV_SND, SND_TONE, value))
+                self.io.write(self.tone_fd, INPUT_EVENT.pack(int(t), int((t % 1.0) * 1e6), EV_SND, SND_TONE, value))
                 self.tone_hz = value
             except OSError as e:
                 self.problems.append('speaker: writing {} failed: {}'.format(self.sound_path, e))
@@ -184,7 +186,7 @@ class BrickSignals(object):
         if fd < 0:
             return
         try:
-            os.pwrite(fd, b'%d\n' % value, 0)
+            self.io.pwrite(fd, b'%d\n' % value, 0)
             self.shown[target] = value
         except OSError as e:
             self.problems.append('light: writing {} failed: {}'.format(LEDS[target][2], e))
@@ -204,10 +206,9 @@ class BrickSignals(object):
         if self.tone_hz:
             self.apply('tone', 0)
 
-    @staticmethod
-    def _close(fd):
+    def _close(self, fd):
         try:
-            os.close(fd)
+            self.io.close(fd)
         except OSError:
             pass
         return -1

@@ -127,14 +127,16 @@ def matrix(rows, cols):
 
 
 class Fields(object):
-    """The fields of one file: raises ``error('<source>: field <name> <problem>')``."""
+    """The fields of one file: raises ``error('<source>: field <prefix><name> <problem>')``
+    (prefix: where these fields sit in the file, when another file's format is nested in it)."""
 
-    def __init__(self, source, error):
+    def __init__(self, source, error, prefix=''):
         self.source = source
         self.error = error
+        self.prefix = prefix
 
     def fail(self, field, problem):
-        raise self.error(message(self.source, field, problem))
+        raise self.error(message(self.source, self.prefix + field, problem))
 
     def check(self, field, value, checker):
         """value, if checker finds no problem with it."""

@@ -9,7 +9,11 @@ module rewrites the generated function (with ``ast``, no sympy) into
   per model (they are most of the constants: masses times lengths squared, ...);
 - ``deriv(x, u, pre)``: the rest of M (its lower triangle only: the Cholesky never reads the
   upper one) and F, then the Cholesky factorization and both triangular solves unrolled
-  into straight-line code over local variables, returning ``[q', q'']`` as a list.
+  into straight-line code over local variables, returning ``[q', q'']`` as a list;
+- ``deriv_ext(x, u, pre, e, rhs)``: the same with additions to M and F (``e``: the 15 entries
+  of M's lower triangle, row by row, then the 5 of F) and, after ``[q', q'']``, the solutions
+  M^-1 r of each extra right-hand side r in ``rhs`` (hostsim.world.drivetrain: a rotor taken
+  out of the mass matrix or locked by friction).
 
 Every floating-point operation is the one the original code performs, in the same order
 (hoisted subtrees are whole nodes of the original expression trees, the unrolled solve
@@ -124,17 +128,41 @@ def compile_source(module_source):
     lines += ["    %s = %s" % (n, src) for n, src in hoisted]
     lines.append("    return (%s,)" % ", ".join(passed))
     lines.append("")
-    lines.append("def deriv(x, u, pre):")
-    lines.append("    %s, = x" % ", ".join(q_names + qd_names))
-    lines.append("    %s = u[0], u[1], u[3], u[4]" % ", ".join(u_names))
-    lines.append("    %s, = pre" % ", ".join(passed))
-    lines += ["    %s = %s" % (t, ast.unparse(v)) for t, v in live]
-    for (i, j), e in m_out.items():
-        lines.append("    m%d%d = %s" % (i, j, ast.unparse(e)))
-    for i, e in enumerate(f_out):
-        lines.append("    f%d = %s" % (i, ast.unparse(e)))
-    lines += _cholesky_lines(qd_names)
+    head = ["    %s, = x" % ", ".join(q_names + qd_names),
+            "    %s = u[0], u[1], u[3], u[4]" % ", ".join(u_names),
+            "    %s, = pre" % ", ".join(passed)]
+    head += ["    %s = %s" % (t, ast.unparse(v)) for t, v in live]
+    m_lines = ["    m%d%d = %s" % (i, j, ast.unparse(e)) for (i, j), e in m_out.items()]
+    f_lines = ["    f%d = %s" % (i, ast.unparse(e)) for i, e in enumerate(f_out)]
+    chol = _cholesky_lines(qd_names)
+    lines += ["def deriv(x, u, pre):"] + head + m_lines + f_lines + chol
+    # deriv_ext: the same code with the additions e to M and F, and the extra right-hand sides.
+    lines += ["", "def deriv_ext(x, u, pre, e, rhs):"] + head
+    lines += ["    m%d%d = (%s) + e[%d]" % (i, j, ast.unparse(e), k) for k, ((i, j), e) in enumerate(m_out.items())]
+    lines += ["    f%d = (%s) + e[%d]" % (i, ast.unparse(e), len(m_out) + i) for i, e in enumerate(f_out)]
+    lines += chol[:-1] + ["    out = " + chol[-1].strip()[len("return "):]] + _extra_solve_lines()
+    lines.append("    return out")
     return "\n".join(lines) + "\n"
+
+
+def _extra_solve_lines():
+    """The triangular solves of _cholesky_lines again, for each r in rhs."""
+    return (["    for r in rhs:"] + _solve_lines("r[%d]", "z", "s", "        ")
+            + ["        out += [%s]" % ", ".join("s%d" % i for i in range(N_Q))])
+
+
+def _solve_lines(rhs, y, x, indent):
+    """L y = rhs, then L^T x = y, with the factor l<i><j> of _cholesky_lines (rhs: a format of
+    the entry's index; y, x: prefixes of the locals)."""
+    n = N_Q
+    out = []
+    for i in range(n):
+        terms = "".join(" - l%d%d * %s%d" % (i, k, y, k) for k in range(i))
+        out.append("%s%s%d = (%s%s) / l%d%d" % (indent, y, i, rhs % i, terms, i, i))
+    for i in range(n - 1, -1, -1):
+        terms = "".join(" - l%d%d * %s%d" % (k, i, x, k) for k in range(i + 1, n))
+        out.append("%s%s%d = (%s%d%s) / l%d%d" % (indent, x, i, y, i, terms, i, i))
+    return out
 
 
 def _cholesky_lines(qd_names):
@@ -151,12 +179,7 @@ def _cholesky_lines(qd_names):
                 out.append("    l%d%d = sqrt(s)" % (i, i))
             else:
                 out.append("    l%d%d = (m%d%d%s) / l%d%d" % (i, j, i, j, terms, j, j))
-    for i in range(n):
-        terms = "".join(" - l%d%d * y%d" % (i, k, k) for k in range(i))
-        out.append("    y%d = (f%d%s) / l%d%d" % (i, i, terms, i, i))
-    for i in range(n - 1, -1, -1):
-        terms = "".join(" - l%d%d * a%d" % (k, i, k) for k in range(i + 1, n))
-        out.append("    a%d = (y%d%s) / l%d%d" % (i, i, terms, i, i))
+    out += _solve_lines("f%d", "y", "a", "    ")
     out.append("    return [%s, %s]" % (", ".join(qd_names), ", ".join("a%d" % i for i in range(n))))
     return out
 
@@ -179,6 +202,12 @@ def compile_model(model):
         namespace = {"_not_spd": _not_spd}
         namespace.update({k: getattr(math, k) for k in dir(math) if not k.startswith("_")})
         exec(compile(source, "<hostsim.model.fastdyn %s>" % path, "exec"), namespace)
-        fns = _CACHE[path] = (namespace["prepare"], namespace["deriv"])
-    prepare, deriv = fns
-    return deriv, prepare(model._pl)
+        fns = _CACHE[path] = (namespace["prepare"], namespace["deriv"], namespace["deriv_ext"])
+    return fns[1], fns[0](model._pl)
+
+
+def compile_model_ext(model):
+    """(deriv_ext, pre) for a hostsim.model.RobotModel (see the module docstring)."""
+    compile_model(model)
+    fns = _CACHE[model._f.__file__]
+    return fns[2], fns[0](model._pl)

@@ -14,59 +14,99 @@ whole ticks more; ``jitter_s`` makes each wake-up late by |N(0, jitter_s)| (roun
 plant's 1 ms step). The plant integrates with the scenario's ``plant_method`` at 1 kHz, one
 ``advance`` per piece of constant input (hostsim.world.plant).
 
+With a scenario's ``brick`` effects on (hostsim.sim.scenario.Brick), the world is
+hostsim.sim.brick_world.BrickWorld instead: the same plant on a 1 ms grid with the
+drivetrain, the sensors' and the battery's imperfections and, with the brick's timing, every
+sysfs access at its own moment (hostsim.world.brick_timing); the brick's timing needs the
+fake EV3 tree (``sysfs=True``). With the timing, the firmware's cues in its loop (lights and
+tones in the slack after the writes) are given on the fake's lights and speaker, and cost
+brick time as on the brick (SlackCues); otherwise the run is quiet.
+
 Start: like a person holding the robot, the world keeps the plant at the scenario's start
 pose while the firmware calibrates the gyro (about 1.1 s, with the scenario's gyro bias and
 noise), and releases it when the control loop starts; t = 0 in the results is that
 release. The firmware is told the start pose (config ``start_pose_rad``). What differs from
 the linear simulation, as on the robot:
 
-- the estimate starts from the first measurement (x~_0 = y_0), not from a given x~(0);
-- the wheel-position origin is where the wheels stand: the firmware's signal chain sets
-  d = R_w (phi_rel + th1) with the relative wheel angle phi_rel counted from its first
-  reading, so it starts at d = R_w th1(0) whatever the scenario's d(0). It regulates its d to
+- the estimate starts from what the firmware is told, not from a given x~(0): the Kalman
+  filter (the default) at rest at the start pose with the calibrated bias, the paper's
+  detector from its first measurement (x~_0 = y_0);
+- the wheel-position origin is where the wheels stand: the firmware counts the relative wheel
+  angle phi_rel from its first reading and sets d = R_w (phi_rel + th1) with the tilt it is
+  told, so it starts at d = R_w th1(0) whatever the scenario's d(0). It regulates its d to
   0, i.e. the plant's d to ``d_origin_m`` = d(0) - R_w th1(0). Results (x, and the
-  firmware's estimates, shifted by that offset) are in the scenario's frame; metrics measure
-  the final displacement from d_origin_m.
+  firmware's estimates from its log, tipbot_fw.replay.signals, shifted by that offset) are in
+  the scenario's frame; metrics measure the final displacement from d_origin_m.
 """
+import math
 import os
 import tempfile
 
 import numpy as np
 
+from hostsim.errors import TipbotError
 from hostsim.model.equations import RobotModel, state_scale_to_si
 from hostsim.model.gains import with_law
 from hostsim.model.params import load_params, scaled_params
+from hostsim.sim.brick_world import BrickWorld, Lockstep
 from hostsim.sim.result import RunResult
-from hostsim.world.plant import Plant
-from hostsim.sim.scenario import disturbance_at
-from hostsim.world.sensors import SensorModel
+from hostsim.world.brick_timing import AccessTimes, BrickClock, TimedIO
+from hostsim.world.drivetrain import DrivetrainPlant
+from hostsim.world.gyro import GyroModel
+from hostsim.world.plant import Plant, apply_push
+from hostsim.sim.scenario import disturbance_at, firmware_overrides, merged_fields
+from hostsim.world.sensors import BatteryModel, EncoderModel, SensorModel
 from tipbot_fw import config as fw_config
 from tipbot_fw import logfile
 from tipbot_fw import replay as fw_replay
 from tipbot_fw.calibration import sample_counts
 from tipbot_fw.clock import VirtualClock
 from tipbot_fw.cues import QUIET as QUIET_CUES
+from tipbot_fw.cues import OwnerCues
 from tipbot_fw.devices import MemoryDevices
+from tipbot_fw.feedback import BrickSignals
 from tipbot_fw.config import MOTOR_ROLES
 from tipbot_fw.gains import ACTUATED_INPUTS, gains_from_dict, load_gains
-from tipbot_fw.session import run_session
+from tipbot_fw.safety import DevicesMissing
+from tipbot_fw.session import log_refused_start, open_log, run_session
 
 DEFAULT_IO_LATENCY_S = 0.002
 PLANT_DT_S = 0.001
 _EPS_S = 1e-9
 
 
+# Coulomb friction is given as the duty that just starts a free motor at this battery voltage
+# (../shared/ev3-hardware.md: about 4 % on a Large motor, 10 % on a Medium one, at 8 V).
+DEADBAND_REFERENCE_V = 8.0
+# The fake EV3's random draws (brick timing, gyro effects) use their own generators, seeded
+# (scenario seed, stream), so that switching one effect leaves the others' draws alone.
+STREAM_TIMING, STREAM_GYRO = 1, 2
+
+
+class SimulationError(TipbotError):
+    """A scenario the firmware-in-the-loop simulation cannot run as asked."""
+
+
+class SlackCues(OwnerCues):
+    """The owner's cues the firmware gives inside its loop (the rest of the let-go melody,
+    'balancing', a battery warning: tipbot_fw.cues.LoopCues, a side task in the slack after
+    the writes), on the fake EV3's lights and speaker through the brick's timed I/O, so that
+    they cost brick time as on the brick. The blocking light-and-melody shows before the
+    calibration and after the stop are left out: they are outside the loop, and the run's
+    record ends where the firmware's does."""
+
+    def __init__(self, signals):
+        OwnerCues.__init__(self, streams=(), brick=signals)
+
+    def _signal(self, state):
+        pass
+
+
 def firmware_config(sc, rw_m, overrides=None):
-    """The firmware's configuration for a scenario: defaults + what the scenario implies."""
-    doc = {
-        "start_pose_rad": {"th1": sc.x0_si[2], "th2": sc.x0_si[3], "th3": sc.x0_si[4]},
-        "gyro_sign": int(sc.sensors.gyro_sign),
-        "wheel_radius_m": rw_m,
-        "realtime_priority": 0,
-    }
-    if overrides:
-        doc.update(overrides)
-    return fw_config.config_from_overrides(doc, "<scenario %s>" % sc.name)
+    """The firmware's configuration for a scenario: defaults + what the scenario implies +
+    the scenario's firmware_config (hostsim.sim.scenario.firmware_overrides) + overrides."""
+    doc = merged_fields(firmware_overrides(sc.x0_si, sc.sensors.gyro_sign, sc.firmware_config, rw_m), overrides or {})
+    return fw_config.config_from_overrides(doc, "scenario %s, firmware_config" % sc.name)
 
 
 def calibration_end_s(config, ts_s):
@@ -75,7 +115,7 @@ def calibration_end_s(config, ts_s):
     return (settle + n - 1) * ts_s
 
 
-class World:
+class World(Lockstep):
     """Plant + sensors (+ fake EV3), advanced by the firmware's clock."""
 
     def __init__(self, sc, plant, sensors, ts_s, t_release_s, fake=None, io_latency_s=DEFAULT_IO_LATENCY_S,
@@ -91,7 +131,7 @@ class World:
         self.devices = None                     # MemoryDevices, when not on the fake
         self.ports = None                       # fake EV3 motor ports, in MOTOR_ROLES order
         self.battery_v = sc.sensors.battery_v
-        self.pushes = sorted((t_release_s + p.t_s, p.th1_dot_rad_s) for p in sc.pushes)
+        self.pushes = sorted(((t_release_s + p.t_s, p) for p in sc.pushes), key=lambda tp: tp[0])
         edges = {t for d in sc.disturbances for t in (d.t_start_s, d.t_end_s)}
         self.breaks = sorted({t_release_s + t for t in edges} | {t for t, _ in self.pushes})
         self.delay = [np.zeros(5)] * sc.extra_delay_ticks
@@ -116,6 +156,9 @@ class World:
         """MemoryDevices source: the readings published at the current time."""
         return self.readings
 
+    def battery_reading(self):
+        return self.battery_v
+
     # -- what the firmware commands
     def duties(self):
         if self.fake is not None:
@@ -136,17 +179,7 @@ class World:
         if t_to <= self.t_release_s + _EPS_S:          # held still while calibrating
             self.publish(t_to)
             return
-        t_from = max(t_from, self.t_release_s)
-        if not self.released:
-            self.released = True
-            self._record(t_from)
-        if self.fake is not None:
-            # Where each loop iteration's sysfs operations end in the fake's client-I/O log.
-            self.io_marks.append(len(self.fake.io.log))
-        if self.sc.jitter_s > 0:
-            late = abs(self.rng.normal(0.0, self.sc.jitter_s))
-            t_to = t_to + round(late / PLANT_DT_S) * PLANT_DT_S
-            self.clock.t = t_to
+        t_from, t_to = self._wake(t_from, t_to, PLANT_DT_S)
         self.delay.append(self.motor_volts())
         v_new = self.delay.pop(0)
         t_switch = min(t_from + self.io_latency_s, t_to)
@@ -158,10 +191,6 @@ class World:
         self._record(t_to)
         self.publish(t_to)
 
-    def _record(self, t):
-        self.log_t.append(t - self.t_release_s)
-        self.log_x.append(self.plant.x_si)
-
     def _w(self, t0, t1):
         # The disturbance over a piece without edges: sampled mid-piece, so rounding of the
         # absolute times cannot pick the neighbouring value.
@@ -170,7 +199,7 @@ class World:
     def _integrate(self, t0, t1, volts):
         while t1 - t0 > 1e-12:
             while self.pushes and self.pushes[0][0] <= t0 + _EPS_S:
-                self.plant.x[7] += self.pushes.pop(0)[1]
+                apply_push(self.plant, self.pushes.pop(0)[1])
             t_end = t1
             for b in self.breaks:
                 if t0 + _EPS_S < b < t_end - _EPS_S:
@@ -206,12 +235,23 @@ def run_firmware(sc, gains_path=None, gains_doc=None, sysfs=True, log_path=None,
     u_unsat (before saturation).
     """
     gains_path = gains_path or sc.gains
+    brick = sc.brick
+    if brick.needs_sysfs and not sysfs:
+        raise SimulationError("scenario %s: the brick's timing (brick.*_access_s, compute_s, late wakes, stalls) "
+                              "and the gyro's mode write act through the fake EV3 tree: run it with the sysfs "
+                              "device" % sc.name)
     rng = np.random.default_rng(sc.seed)
     nominal = load_params() if params is None else params
     p = scaled_params(sc.param_scale, nominal)
     model = RobotModel(sc.plant_variant, p)
     to_model = 1.0 / np.diag(state_scale_to_si(model.variant))
-    plant = Plant(model, np.array(sc.x0_si) * to_model, dt_s=PLANT_DT_S, method=sc.plant_method)
+    x0_model = np.array(sc.x0_si) * to_model
+    if brick.drivetrain:
+        plant = DrivetrainPlant(model, x0_model, dt_s=PLANT_DT_S, method=sc.plant_method,
+                                friction_nm=friction_torques_nm(brick.friction_deadband_pct, p),
+                                backlash_rad=[math.radians(d) for d in brick.backlash_deg])
+    else:
+        plant = Plant(model, x0_model, dt_s=PLANT_DT_S, method=sc.plant_method)
     if gains_doc is not None:
         gains = gains_from_dict(gains_doc, "<%s gains for %s>" % (gains_doc["model_variant"], sc.name))
     else:
@@ -223,50 +263,108 @@ def run_firmware(sc, gains_path=None, gains_doc=None, sysfs=True, log_path=None,
                           gyro_bias_dps=s.gyro_bias_dps, gyro_noise_dps=s.gyro_noise_dps, rng=rng,
                           battery_v=s.battery_v)
     t_release = calibration_end_s(config, gains.ts_s)
+    ports = tuple(config["ports"][r] for r in MOTOR_ROLES)
     fake = None
     if sysfs:
         from hostsim.world.fake_ev3 import FakeEV3
         from tipbot_fw.ev3io import Ev3Devices
-        fake = FakeEV3(battery_v=s.battery_v)
-    world = World(sc, plant, sensors, gains.ts_s, t_release, fake=fake, io_latency_s=sc.io_latency_s, rng=rng)
-    clock = VirtualClock(on_sleep=world.on_sleep)
+        fake = FakeEV3(battery_v=s.battery_v, gyro_mode_write_s=brick.gyro_mode_write_s,
+                       gyro_mode_timeout=brick.gyro_mode_timeout)
+    if brick.ideal:
+        world = World(sc, plant, sensors, gains.ts_s, t_release, fake=fake, io_latency_s=sc.io_latency_s, rng=rng)
+        clock = VirtualClock(on_sleep=world.on_sleep)
+        io = None if fake is None else fake.io
+    else:
+        world = _brick_world(sc, plant, sensors, signs, p, config, gains.ts_s, t_release, fake, ports, rng)
+        clock = BrickClock(on_sleep=world.on_sleep)
+        io = None if fake is None else TimedIO(fake.io, fake, clock, world, world.times,
+                                               end_of_reads=fake.relpath(config["ports"]["gyro"], "bin_data"))
     world.clock = clock
     tmp = None
     if keep_rows and log_path is None:
         tmp = tempfile.TemporaryDirectory(prefix="tipbot-fil-")
         log_path = os.path.join(tmp.name, "run.log")
+    rows = None
     try:
+        # as tipbot_fw.cli: the log is opened before the devices, so a refused start has one too
+        log = open_log(log_path, gains, config, sc.duration_s) if log_path else None
         if sysfs:
-            world.ports = tuple(config["ports"][r] for r in MOTOR_ROLES)
-            devices = Ev3Devices(config, sysfs_root=fake.sysfs_root, io=fake.io)
+            world.ports = ports
+            try:
+                devices = Ev3Devices(config, sysfs_root=fake.sysfs_root, io=io)
+            except Exception as e:      # as tipbot_fw.cli: a header-only log that says why, exit 3
+                devices = None
+                error = DevicesMissing(" ".join(("%s: %s" % (type(e).__name__, e)).split()))
+                if log is not None:
+                    log_refused_start(log, gains, config, sc.duration_s, error, say=lambda msg: None)
+                code, header = error.exit_code, {"stop_reason": error.reason, "stop_message": str(error)}
         else:
-            devices = MemoryDevices(source=world.read, battery_v=lambda: world.battery_v)
+            devices = MemoryDevices(source=world.read, battery_v=world.battery_reading)
             world.devices = devices
-        try:
-            code, header = run_session(devices, gains, config, clock, log_path=log_path,
-                                       duration_s=sc.duration_s, say=lambda msg: None, cues=QUIET_CUES)
-        finally:
-            devices.close()
-        rows = None
-        if keep_rows and os.path.exists(log_path):
-            header, rows = logfile.read_log(log_path)
+        if devices is not None:
+            cues = QUIET_CUES
+            if brick.timed:       # the loop's lights and tones cost brick time (brick_timing)
+                cues = SlackCues(BrickSignals(fake.sysfs_root, io=io, now=clock.now,
+                                              sleep=lambda s: clock.sleep_until(clock.now() + s)))
+            if isinstance(world, BrickWorld):
+                world.start_at(clock.t)   # a blocking set-up (the gyro's mode write) took this long
+            try:
+                code, header = run_session(devices, gains, config, clock, log=log,
+                                           duration_s=sc.duration_s, say=lambda msg: None, cues=cues)
+            finally:
+                cues.close()
+                devices.close()
+            if keep_rows and os.path.exists(log_path):
+                log_header, rows = logfile.read_log(log_path)
     finally:
         if fake is not None:
             fake.close()
         if tmp is not None:
             tmp.cleanup()
     if not world.released:                      # stopped at its first tick
-        world._record(t_release)
+        world._record(world.t_release_s)
     rw = config["wheel_radius_m"]
     x0 = sc.x0_si
-    d_origin = np.array([x0[0] - rw * x0[2], x0[1] - rw * x0[2]])
+    # The firmware counts its wheel position from R_w times the tilt it is told (module docstring).
+    th1_told = config["start_pose_rad"]["th1"]
+    d_origin = np.array([x0[0] - rw * th1_told, x0[1] - rw * th1_told])
     out = _world_side(world)
     if fake is not None:
         out["io_per_iteration"] = [fake.io.log[a:b] for a, b in zip(world.io_marks, world.io_marks[1:])]
     if rows is not None:
-        out.update(_firmware_side(header, rows, gains, d_origin, len(out["t_s"])))
+        out.update(_firmware_side(log_header, rows, gains, d_origin, len(out["t_s"])))
+    if isinstance(world, BrickWorld):
+        out["duty_events"] = world.duty_events
     return RunResult(d_origin_m=d_origin, exit_code=code, stop_reason=header.get("stop_reason"), header=header,
                      completed=code == 0 and header.get("stop_reason") == "completed", **out)
+
+
+def friction_torques_nm(deadband_pct, params):
+    """Coulomb friction torque (N m, output side) per motor from its dead band: the duty (%)
+    at DEADBAND_REFERENCE_V that just overcomes it, through the motor's Km / Ra."""
+    return [pct / 100.0 * DEADBAND_REFERENCE_V * params[r + "_km_nm_a"] / params[r + "_ra_ohm"]
+            for pct, r in zip(deadband_pct, MOTOR_ROLES)]
+
+
+def _brick_world(sc, plant, sensors, signs, p, config, ts_s, t_release, fake, ports, rng):
+    """A BrickWorld for the scenario's brick effects."""
+    b = sc.brick
+    s = sc.sensors
+    gyro = None
+    if b.gyro_effects:
+        gyro = GyroModel(PLANT_DT_S, gyro_sign=int(s.gyro_sign), bias_dps=s.gyro_bias_dps,
+                         noise_dps=s.gyro_noise_dps, rng=rng, fx_rng=np.random.default_rng([sc.seed, STREAM_GYRO]),
+                         latency_s=b.gyro_latency_s, freeze_s=b.gyro_freeze_s,
+                         freeze_interval_s=b.gyro_freeze_interval_s, scale_error=b.gyro_scale_error,
+                         bias_walk_dps_rt_s=b.gyro_bias_walk_dps_rt_s, bias_ramp_dps_s=b.gyro_bias_ramp_dps_s,
+                         rate_step_dps=b.gyro_rate_step_dps)
+    encoders = EncoderModel(signs, sensors.counts_per_rot, PLANT_DT_S, b.encoder_update_s, b.encoder_truncate)
+    battery = BatteryModel(s.battery_v, b.battery_r_ohm, b.battery_quantum_v,
+                           [p[r + "_ke_v_s"] for r in MOTOR_ROLES], [p[r + "_ra_ohm"] for r in MOTOR_ROLES])
+    times = AccessTimes(b, np.random.default_rng([sc.seed, STREAM_TIMING])) if b.timed else None
+    settle, n = sample_counts(config["gyro_calibration"], ts_s)
+    return BrickWorld(sc, plant, sensors, encoders, gyro, battery, signs, ts_s, t_release, settle + n,
+                      fake=fake, ports=ports, rng=rng, times=times)
 
 
 def _world_side(world):
@@ -289,11 +387,10 @@ def _firmware_side(header, rows, gains, d_origin, n):
     shift[:2] = d_origin
     xhat = sig["x_hat"] + shift
     w_hat, u_cmd, u_unsat = sig["w_hat"], sig["u"], sig["u_cmd"]
-    flags = rows[:n, [c["name"] for c in header["columns"]].index("flags")].astype(int)
-    saturated = (flags & logfile.SATURATION_BITS) != 0
+    names = [c["name"] for c in header["columns"]]
+    flags, tick = (rows[:n, names.index(c)][:, None] for c in ("flags", "tick_s"))
     if len(xhat) < n:
         pad = n - len(xhat)
-        xhat, w_hat, u_cmd, u_unsat = (np.vstack([a, np.full((pad, a.shape[1]), np.nan)])
-                                       for a in (xhat, w_hat, u_cmd, u_unsat))
-        saturated = np.concatenate([saturated, np.zeros(pad, dtype=bool)])
-    return dict(xhat=xhat, w_hat=w_hat, u_cmd=u_cmd, u_unsat=u_unsat, saturated=saturated)
+        xhat, w_hat, u_cmd, u_unsat, flags, tick = (np.vstack([a, np.full((pad, a.shape[1]), np.nan)])
+                                                    for a in (xhat, w_hat, u_cmd, u_unsat, flags, tick))
+    return dict(xhat=xhat, w_hat=w_hat, u_cmd=u_cmd, u_unsat=u_unsat, flags=flags[:, 0], tick_work_s=tick[:, 0])

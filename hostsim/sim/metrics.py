@@ -8,6 +8,9 @@ import math
 import numpy as np
 
 from tipbot_fw.gains import ACTUATED_INPUTS
+from tipbot_fw.logfile import FLAG_BITS, SATURATION_BITS
+
+OVERRUN_BIT = FLAG_BITS["overrun"]
 
 UPRIGHT_LIMIT_RAD = math.radians(30)
 # After this transient, |th1| counts as the steady oscillation (paper, Section 9).
@@ -46,9 +49,11 @@ def compute(run, sc, u_max_v):
     t, x, u = run.t_s, run.x, run.u
     origin = np.zeros(2) + run.d_origin_m
     th1 = x[:, 2]
-    # the firmware's own flags (a duty limited at u_max_v or 100 %: at a battery voltage that is
-    # not a divisor, the limit is a duty just under u_max_v); else the inputs at u_max_v
-    sat = run.saturated if run.saturated is not None else np.any(np.abs(u[:, ACTUATED_INPUTS]) >= u_max_v - 1e-6, axis=1)
+    if run.flags is not None:
+        # the firmware's own word: a duty was limited (its battery reading sets the limit)
+        sat = (np.nan_to_num(run.flags).astype(int) & SATURATION_BITS) != 0
+    else:
+        sat = np.any(np.abs(u[:, ACTUATED_INPUTS]) >= u_max_v - 1e-6, axis=1)
     m = {
         "duration_s": _f(t[-1]),
         "completed": bool(run.completed),
@@ -61,6 +66,8 @@ def compute(run, sc, u_max_v):
         "u_max_v": [_f(v) for v in np.max(u[:, ACTUATED_INPUTS], axis=0)],
         "saturated_fraction": _f(np.mean(sat)),
         "last_saturated_s": _f(t[np.nonzero(sat)[0][-1]]) if sat.any() else None,
+        "overrun_fraction": (_f(np.mean((np.nan_to_num(run.flags).astype(int) & OVERRUN_BIT) != 0))
+                             if run.flags is not None else None),
         "settle_time_s": settle_time(t, th1, sc.settle_band_rad),
         "final_abs_th1_rad": _f(abs(th1[-1])),
         "final_abs_d_m": _f(np.max(np.abs(x[-1, :2] - origin))),

@@ -19,17 +19,18 @@ class RunResult:
     completed: bool                      # ran the scenario's duration (no fall, no safety stop)
     # Where the controller's wheel origin lies in the scenario's frame (m): 0, or per wheel.
     d_origin_m: Any = 0.0
-    xhat: Optional[np.ndarray] = None    # the controller's estimate x~ (n x 10)
+    xhat: Optional[np.ndarray] = None    # the controller's estimate (x~, or the firmware's x^: n x 10)
     w_hat: Optional[np.ndarray] = None   # its disturbance estimate (n x 5, V)
     u_unsat: Optional[np.ndarray] = None  # the law's output before saturation (n x 5, V)
     # The firmware in the loop only:
-    y: Optional[np.ndarray] = None       # its signal chain's measurement, scenario frame (n x 10)
     u_cmd: Optional[np.ndarray] = None   # the inputs it applied (n x 5, V)
-    saturated: Optional[np.ndarray] = None  # per tick: a duty was limited (its log's flags)
     exit_code: Optional[int] = None
     stop_reason: Optional[str] = None
     header: Optional[dict] = None        # its log's header
+    flags: Optional[np.ndarray] = None   # its log's flag bits per tick (tipbot_fw.logfile.FLAG_BITS)
+    tick_work_s: Optional[np.ndarray] = None  # its log's tick_s: a tick's start to the end of its writes
     io_per_iteration: Optional[list] = None  # sysfs runs: the device layer's (op, path, bytes) per loop
+    duty_events: Optional[list] = None   # brick worlds: (t from release, motor, duty fraction) applied
     wall_s: Optional[float] = None       # the simulation's own wall time
 
     def arrays(self):

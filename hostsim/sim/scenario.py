@@ -23,6 +23,14 @@ Each scenario runs in one or more ``modes`` (hostsim.studies.runner):
 
 ``controllers``: ``optimal`` (LQR + detector + K_w) and/or ``pd`` (the Appendix D
 baseline of hostsim.model.pd); each mode runs once per controller.
+
+``brick`` (firmware mode only): what makes the simulated EV3 as unkind as the real one, each
+effect off by default (``Brick``; realistic values, with their sources, in
+scenarios/brick_realistic.json; docs/architecture.md describes the models).
+``firmware_config``: fields of the firmware's configuration to override (e.g. the start
+pose it is told, which the plant's x0 need not match). What the firmware will be told (x0's
+pose unless overridden, then these fields) is checked when the scenario is read, by the
+configuration's own bounds (tipbot_fw.config), and named ``firmware_config.<field>``.
 """
 import dataclasses
 import os
@@ -31,6 +39,7 @@ from typing import Optional
 from hostsim.errors import TipbotError
 from hostsim.model.params import REQUIRED
 from hostsim.paths import REPO_ROOT
+from tipbot_fw import config as fw_config
 from tipbot_fw import fields
 from tipbot_fw.plausibility import BATTERY_MAX_V, BATTERY_MIN_V
 
@@ -54,12 +63,16 @@ DEFAULTS = {
     "xhat0_si": None,                 # initial estimate (linear, nonlinear); None: equal to x0
     "xhat0_paper_units": None,
     "disturbances": [],               # [{"t_start_s", "t_end_s", "w_v": [5]}]
-    "pushes": [],                     # [{"t_s", "th1_dot_rad_s"}]: an impulse on link 1
+    "pushes": [],                     # [{"t_s", "th1_dot_rad_s"}]: link 1's rate jumps, or
+                                      # [{"t_s", "link", "impulse_n_s"}]: a horizontal impulse
+                                      # at that link's centre of mass (forward positive)
     "sensors": {},                    # see SENSOR_DEFAULTS
     "extra_delay_ticks": 0,
     "io_latency_s": 0.002,            # firmware: tick start to its duties taking effect
     "jitter_s": 0.0,                  # std of the loop's wake-up jitter (firmware in the loop)
     "seed": 0,
+    "brick": {},                      # the simulated EV3's imperfections (Brick; firmware mode)
+    "firmware_config": {},            # overrides of the firmware's configuration
     "modes": ["linear", "firmware"],  # which simulations to run (MODES)
     "settle_band_rad": 0.02,          # |th1| band for the settling time
     "expect": {},                     # optional pass criteria checked by `hostsim run`
@@ -77,9 +90,12 @@ class Disturbance:
 
 @dataclasses.dataclass(frozen=True)
 class Push:
-    """An impulse on link 1: its rate jumps by th1_dot_rad_s at t_s."""
+    """At t_s, link 1's rate jumps by th1_dot_rad_s; or, with impulse_n_s, a horizontal
+    impulse (N s, forward positive) hits link ``link`` (1-3) at its centre of mass."""
     t_s: float
-    th1_dot_rad_s: float
+    th1_dot_rad_s: float = 0.0
+    link: int = 1
+    impulse_n_s: Optional[float] = None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -92,6 +108,101 @@ class Sensors:
 
 
 SENSOR_DEFAULTS = dataclasses.asdict(Sensors())
+
+
+@dataclasses.dataclass(frozen=True)
+class Brick:
+    """The simulated EV3's imperfections (firmware in the loop), all off by default.
+    Times in s, per-motor lists in the order right wheel, left wheel, joint 2, joint 3."""
+    # time (hostsim.world.brick_timing): each sysfs access, the tick's Python, the scheduler
+    tacho_access_s: tuple = (0.0, 0.0)     # a position read or duty write: uniform in [lo, hi]
+    sensor_access_s: tuple = (0.0, 0.0)    # a gyro bin_data or battery read
+    compute_s: tuple = (0.0, 0.0)          # the tick's own Python, between reads and writes
+    cpu_steal: float = 0.0                 # share of the CPU interrupts take: stretches all of it
+    late_wake_probability: float = 0.0     # a wake-up is late (a kernel thread holds the CPU) ...
+    late_wake_s: tuple = (0.0, 0.0)        # ... by U(lo, hi)
+    stall_rate_hz: float = 0.0             # multi-tick stalls (SD card, kernel threads) per second ...
+    stall_s: tuple = (0.0, 0.0)            # ... lasting U(lo, hi)
+    # encoders (hostsim.world.sensors.EncoderModel)
+    encoder_update_s: float = 0.0          # position updated this often (0: at the read)
+    encoder_truncate: bool = False         # whole edges passed instead of the nearest count
+    # motors (hostsim.world.drivetrain)
+    friction_deadband_pct: tuple = (0.0, 0.0, 0.0, 0.0)   # Coulomb friction: the duty at 8 V that starts a free motor
+    backlash_deg: tuple = (0.0, 0.0, 0.0, 0.0)            # free play at the output
+    # gyro (hostsim.world.gyro)
+    gyro_latency_s: float = 0.0
+    gyro_freeze_s: float = 0.0             # a UART overrun freezes the reading this long ...
+    gyro_freeze_interval_s: float = 0.0    # ... at exponential intervals of this mean (0: never)
+    gyro_scale_error: tuple = (0.0, 0.0)   # for positive, negative rates (sensor frame)
+    gyro_bias_walk_dps_rt_s: float = 0.0   # bias random walk, deg/s per sqrt(s)
+    gyro_bias_ramp_dps_s: float = 0.0      # bias drift, deg/s per s
+    gyro_rate_step_dps: float = 0.0        # the rate moves in steps of this (0: 1 deg/s)
+    gyro_mode_write_s: float = 0.0         # a mode write blocks this long (hostsim.world.fake_ev3)
+    gyro_mode_timeout: bool = False        # an old sensor: mode writes time out (ETIMEDOUT)
+    # battery (hostsim.world.sensors.BatteryModel)
+    battery_r_ohm: float = 0.0             # internal resistance: sags under the motors' current
+    battery_quantum_v: float = 0.0         # voltage_now resolution
+    sources: dict = dataclasses.field(default_factory=dict, compare=False)   # field -> where its value comes from
+
+    @property
+    def timed(self):
+        """Accesses and the scheduler cost time (hostsim.world.brick_timing)."""
+        return (self.tacho_access_s[1] > 0 or self.sensor_access_s[1] > 0 or self.compute_s[1] > 0
+                or (self.late_wake_probability > 0 and self.late_wake_s[1] > 0)
+                or (self.stall_rate_hz > 0 and self.stall_s[1] > 0))
+
+    @property
+    def needs_sysfs(self):
+        """Effects that act through the fake EV3 tree: the timing, the gyro's mode write."""
+        return self.timed or self.gyro_mode_write_s > 0 or self.gyro_mode_timeout
+
+    @property
+    def drivetrain(self):
+        return any(self.friction_deadband_pct) or any(self.backlash_deg)
+
+    @property
+    def gyro_effects(self):
+        return bool(self.gyro_latency_s or (self.gyro_freeze_s and self.gyro_freeze_interval_s)
+                    or any(self.gyro_scale_error) or self.gyro_bias_walk_dps_rt_s or self.gyro_bias_ramp_dps_s
+                    or self.gyro_rate_step_dps)
+
+    @property
+    def ideal(self):
+        """Every effect off: today's world (hostsim.sim.fil.World)."""
+        return self == Brick()     # sources do not compare
+
+
+BRICK_FIELDS = tuple(f.name for f in dataclasses.fields(Brick))
+# Physical bounds of the brick's fields: (field, kind, bound). Kinds: "range" a [lo, hi] pair
+# with 0 <= lo <= hi <= bound; "motors" four values in [0, bound]; "pair" two values in
+# [-bound, bound]; "value" one in [0, bound]; "signed" one in [-bound, bound]; "flag" true or
+# false. Far beyond the realistic values (scenarios/brick_realistic.json, ../shared/ev3-hardware.md)
+# and the margin sweep's ranges (hostsim.studies.margins), short of what is no EV3 or no test.
+BRICK_BOUNDS = (
+    ("tacho_access_s", "range", 0.005),          # one access a whole 5 ms tick: a stall, not an access
+    ("sensor_access_s", "range", 0.005),
+    ("compute_s", "range", 0.05),                # the longest period a gains file may have
+    ("cpu_steal", "value", 0.9),
+    ("late_wake_probability", "value", 1),
+    ("late_wake_s", "range", 0.05),
+    ("stall_rate_hz", "value", 10),
+    ("stall_s", "range", 1),                     # a second without control is a fall anyway
+    ("encoder_update_s", "value", 0.05),
+    ("encoder_truncate", "flag", None),
+    ("friction_deadband_pct", "motors", 100),    # the duty at 8 V that starts a free motor
+    ("backlash_deg", "motors", 90),
+    ("gyro_latency_s", "value", 0.5),
+    ("gyro_freeze_s", "value", 1),
+    ("gyro_freeze_interval_s", "value", 3600),
+    ("gyro_scale_error", "pair", 0.5),
+    ("gyro_bias_walk_dps_rt_s", "value", 10),
+    ("gyro_bias_ramp_dps_s", "signed", 1),       # 600 deg/s in the longest run: beyond the range
+    ("gyro_rate_step_dps", "value", 50),
+    ("gyro_mode_write_s", "value", 0.5),         # ten of the driver's 50 ms tries
+    ("gyro_mode_timeout", "flag", None),
+    ("battery_r_ohm", "value", 5),               # at 5 ohm one amp of the motors sags 5 V: no battery
+    ("battery_quantum_v", "value", 1),
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -111,6 +222,8 @@ class Scenario:
     disturbances: tuple
     pushes: tuple
     sensors: Sensors
+    brick: Brick
+    firmware_config: dict
     extra_delay_ticks: int
     io_latency_s: float
     jitter_s: float
@@ -132,21 +245,25 @@ POSITIVE = fields.number(lo=0)
 NON_NEGATIVE = fields.number(lo=0, lo_open=False)
 
 # Physical and practical bounds (the simulator stores every tick of a run: 600 s at 1 kHz is
-# about 50 MB of trace; a push beyond 20 rad/s on link 1 or 12 V of disturbance is no robot's).
+# about 50 MB of trace; a push beyond 20 rad/s on link 1, or an impulse beyond 5 N s (the whole
+# 1.3 kg robot at 4 m/s), or 12 V of disturbance is no robot's).
 MAX_DURATION_S = 600.0
 MAX_TIME_S = 3600.0
 MAX_PUSH_RAD_S = 20.0
+MAX_IMPULSE_N_S = 5.0
 MAX_DISTURBANCE_V = 12.0
 STATE_BOUNDS = (10.0, 10.0, 3.2, 3.2, 3.2, 5.0, 5.0, 50.0, 50.0, 50.0)   # m, rad, m/s, rad/s
 NAME_CHARS = set("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_.-")
 
 
-def _vector(f, field, value, length, bounds=None):
+def _vector(f, field, value, length, bounds=None, lo=None, hi=None):
+    """value checked as a list of length numbers, each within +-bounds[i] or [lo, hi]."""
     if not isinstance(value, list) or len(value) != length:
         f.fail(field, "must be a list of %d numbers, got %r" % (length, value))
     if bounds is None:
-        return [f.number("%s[%d]" % (field, i), v) for i, v in enumerate(value)]
-    return [f.number("%s[%d]" % (field, i), v, lo=-b, hi=b, lo_open=False) for i, (v, b) in enumerate(zip(value, bounds))]
+        bounds = [None] * length
+    return [f.number("%s[%d]" % (field, i), v, lo=lo if b is None else -b, hi=hi if b is None else b,
+                     lo_open=False) for i, (v, b) in enumerate(zip(value, bounds))]
 
 
 def parse_scenario(doc, src="<scenario>"):
@@ -190,12 +307,21 @@ def parse_scenario(doc, src="<scenario>"):
         if w[2] != 0.0:
             f.fail(name + ".w_v[2]", "must be 0 (link 1 has no motor)")
     f.check("pushes", sc["pushes"], fields.array)
+    pushes = []
     for i, p in enumerate(sc["pushes"]):
         name = "pushes[%d]" % i
-        _exactly(f, name, p, ("t_s", "th1_dot_rad_s"))
-        f.check(name + ".t_s", p["t_s"], fields.number(lo=0, hi=MAX_TIME_S, lo_open=False))
-        f.check(name + ".th1_dot_rad_s", p["th1_dot_rad_s"],
-                fields.number(lo=-MAX_PUSH_RAD_S, hi=MAX_PUSH_RAD_S, lo_open=False))
+        if isinstance(p, dict) and "impulse_n_s" in p:
+            _exactly(f, name, p, ("t_s", "link", "impulse_n_s"))
+            f.check(name + ".link", p["link"], fields.one_of(1, 2, 3))
+            push = Push(f.number(name + ".t_s", p["t_s"], lo=0, hi=MAX_TIME_S, lo_open=False), link=p["link"],
+                        impulse_n_s=f.number(name + ".impulse_n_s", p["impulse_n_s"], lo=-MAX_IMPULSE_N_S,
+                                             hi=MAX_IMPULSE_N_S, lo_open=False))
+        else:
+            _exactly(f, name, p, ("t_s", "th1_dot_rad_s"))
+            push = Push(f.number(name + ".t_s", p["t_s"], lo=0, hi=MAX_TIME_S, lo_open=False),
+                        f.number(name + ".th1_dot_rad_s", p["th1_dot_rad_s"], lo=-MAX_PUSH_RAD_S,
+                                 hi=MAX_PUSH_RAD_S, lo_open=False))
+        pushes.append(push)
     f.check("sensors", sc["sensors"], fields.obj)
     f.known(sc["sensors"], SENSOR_DEFAULTS, "sensors.")
     sensors = dict(SENSOR_DEFAULTS)
@@ -206,6 +332,19 @@ def parse_scenario(doc, src="<scenario>"):
             fields.number(lo=BATTERY_MIN_V, hi=BATTERY_MAX_V, lo_open=False))
     f.check("sensors.gyro_sign", sensors["gyro_sign"], fields.one_of(1, -1))
     sc["sensors"] = sensors
+    sc["brick"] = _brick(f, sc["brick"])
+    f.check("firmware_config", sc["firmware_config"], fields.obj)
+    if "firmware" in sc["modes"] or sc["firmware_config"]:
+        # what the firmware will be told, checked now by its own bounds (tipbot_fw.config)
+        fw_config.config_from_overrides(firmware_overrides(sc["x0_si"], sensors["gyro_sign"], sc["firmware_config"]),
+                                        src, ScenarioError, "firmware_config.")
+    if sc["brick"].timed:
+        for k, off in (("jitter_s", 0.0), ("extra_delay_ticks", 0)):
+            if sc[k] != off:
+                f.fail(k, "must be %r with the brick's timing (brick.*_access_s, compute_s, late wakes, stalls "
+                          "replace it)" % off)
+        if "io_latency_s" in doc:
+            f.fail("io_latency_s", "does not apply with the brick's timing (each duty lands at its own write)")
     f.check("extra_delay_ticks", sc["extra_delay_ticks"], fields.number(lo=0, hi=100, lo_open=False, integer=True))
     sc["jitter_s"] = f.number("jitter_s", sc["jitter_s"], lo=0, hi=0.05, lo_open=False)
     sc["io_latency_s"] = f.number("io_latency_s", sc["io_latency_s"], lo=0, hi=0.05, lo_open=False)
@@ -226,9 +365,56 @@ def parse_scenario(doc, src="<scenario>"):
               xhat0_si=None if sc["xhat0_si"] is None else tuple(sc["xhat0_si"]),
               disturbances=tuple(Disturbance(float(d["t_start_s"]), float(d["t_end_s"]), tuple(float(v) for v in d["w_v"]))
                                  for d in sc["disturbances"]),
-              pushes=tuple(Push(float(q["t_s"]), float(q["th1_dot_rad_s"])) for q in sc["pushes"]),
+              pushes=tuple(pushes), firmware_config=dict(sc["firmware_config"]),
               sensors=Sensors(**sensors), param_scale=dict(sc["param_scale"]), expect=dict(sc["expect"]))
     return Scenario(**sc)
+
+
+def _brick(f, doc):
+    """The ``brick`` object -> Brick, every field checked against BRICK_BOUNDS."""
+    f.check("brick", doc, fields.obj)
+    f.known(doc, BRICK_FIELDS, "brick.")
+    out = {}
+    if "sources" in doc:
+        f.check("brick.sources", doc["sources"], fields.obj)
+        for field, text in doc["sources"].items():
+            if field not in BRICK_FIELDS:
+                f.fail("brick.sources." + field, "names no brick field")
+            f.check("brick.sources." + field, text, fields.nonempty_string)
+        out["sources"] = dict(doc["sources"])
+    for k, kind, bound in BRICK_BOUNDS:
+        if k not in doc:
+            continue
+        name, v = "brick." + k, doc[k]
+        if kind == "flag":
+            out[k] = f.check(name, v, fields.boolean)
+        elif kind in ("value", "signed"):
+            out[k] = f.number(name, v, lo=0 if kind == "value" else -bound, hi=bound, lo_open=False)
+        else:
+            n, lo = (4, 0) if kind == "motors" else (2, -bound if kind == "pair" else 0)
+            out[k] = tuple(_vector(f, name, v, n, lo=lo, hi=bound))
+            if kind == "range" and out[k][0] > out[k][1]:
+                f.fail(name, "must be [lo, hi] with 0 <= lo <= hi, got %r" % (v,))
+    return Brick(**out)
+
+
+def firmware_overrides(x0_si, gyro_sign, firmware_config, wheel_radius_m=None):
+    """The fields a scenario sets in the firmware's configuration (tipbot_fw.config): the start
+    pose it is held in (x0's th1..th3), its gyro's sign, the wheel radius (when given), no
+    real-time priority; then the scenario's firmware_config, field by field."""
+    doc = {"start_pose_rad": {"th1": x0_si[2], "th2": x0_si[3], "th3": x0_si[4]},
+           "gyro_sign": int(gyro_sign), "realtime_priority": 0}
+    if wheel_radius_m is not None:
+        doc["wheel_radius_m"] = wheel_radius_m
+    return merged_fields(doc, firmware_config)
+
+
+def merged_fields(base, extra):
+    """base with extra's fields in, nested objects merged field by field."""
+    out = dict(base)
+    for k, v in extra.items():
+        out[k] = merged_fields(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+    return out
 
 
 def _exactly(f, name, value, keys):

@@ -68,8 +68,16 @@ def _style(label, solo=False):
                 alpha=1.0 if solo else MODE_ALPHA.get(mode, 1.0))
 
 
-def _shade(ax, sc):
-    end = sc.duration_s
+def _time_end(sc, runs):
+    """The time axis' end: the scenario's duration, unless every run stopped before half of it
+    (the firmware's safe stops): then a little past the last one's end, which would otherwise
+    be a smear at the left edge (a stop after 0.2 s of a 30 s scenario)."""
+    last = max([float(r.t_s[-1]) for r in runs.values() if len(r.t_s)] or [sc.duration_s])
+    return sc.duration_s if last > 0.5 * sc.duration_s else max(1.05 * last, 0.05)
+
+
+def _shade(ax, sc, runs):
+    end = _time_end(sc, runs)
     for d in sc.disturbances:
         if any(d.w_v) and d.t_start_s < end:
             ax.axvspan(d.t_start_s, min(d.t_end_s, end), color="0.88", zorder=0)
@@ -102,7 +110,7 @@ def _write(fig, path):
 def _state_panels(axes, sc, runs, idx, estimates=False, errors=False, solo=False):
     for p, i in enumerate(idx):
         ax = axes.flat[p]
-        _shade(ax, sc)
+        _shade(ax, sc, runs)
         for label, run in runs.items():
             st = _style(label, solo)
             if errors:
@@ -245,7 +253,7 @@ def inputs(sc, runs, u_max_v, path):
     ts_s = np.diff(next(iter(runs.values())).t_s[:2])[0]
     for p, (i, name) in enumerate(INPUT_LABELS):
         ax = axes.flat[p]
-        _shade(ax, sc)
+        _shade(ax, sc, runs)
         for label, run in runs.items():
             st = _style(label)
             ax.plot(run.t_s, run.u[:, i], label=label, **st)
@@ -282,7 +290,7 @@ def compare_controllers(sc, runs, mode, u_max_v, path):
     _state_panels(axes[:5].T, sc, pair, range(10), solo=True)
     for p, (i, name) in enumerate(INPUT_LABELS):
         ax = axes[5 + p // 2, p % 2]
-        _shade(ax, sc)
+        _shade(ax, sc, pair)
         for label, run in pair.items():
             ax.plot(run.t_s, run.u[:, i], label=label, **_style(label, solo=True))
         for s in (-1, 1):
@@ -310,7 +318,7 @@ def scenario_plots(sc, runs, u_max_v, out_dir):
     return out
 
 
-def montecarlo_figure(results, path):
+def montecarlo_figure(results, path, what="parameter, sensor and timing uncertainty"):
     """Distributions of peak tilt and peak voltage per gains file, successes and failures."""
     fig, axes = plt.subplots(1, 3, figsize=(15, 3.8))
     for i, (name, res) in enumerate(results.items()):
@@ -336,8 +344,43 @@ def montecarlo_figure(results, path):
     for ax in axes:
         ax.legend(fontsize=7)
         ax.grid(True, linewidth=0.3)
-    fig.suptitle("Monte Carlo: firmware in the loop under parameter, sensor and timing uncertainty", fontsize=10)
+    fig.suptitle("Monte Carlo: firmware in the loop, %s" % what, fontsize=10)
     fig.tight_layout(rect=(0, 0, 1, 0.93))
+    return _write(fig, path)
+
+
+def margins_figure(res, path):
+    """One panel per effect: the largest value each gains file balances with (each sign where
+    there are two; a triangle: at least that, the search's end), the realistic brick's dashed."""
+    from hostsim.studies.margins import MARGINS
+    labels = sorted({r["gains"] for r in res["margins"]})
+    fig, axes = plt.subplots(1, len(MARGINS), figsize=(2.4 * len(MARGINS), 3.4))
+    for ax, m in zip(axes, MARGINS):
+        names, values, beyond = [], [], []
+        for label in labels:
+            for r in sorted((r for r in res["margins"] if r["gains"] == label and r["effect"] == m.key),
+                            key=lambda r: -r["sign"]):
+                names.append(label + ("" if len(m.signs) == 1 else (" +" if r["sign"] > 0 else " -")))
+                values.append(0.0 if r["margin"] is None else r["margin"])
+                beyond.append(r["at_least"])
+        x = np.arange(len(values))
+        ax.bar(x, values, color=["C%d" % labels.index(n.split(" ")[0]) for n in names])
+        for xi, v, b in zip(x, values, beyond):
+            ax.annotate("%g" % round(v, 4), (xi, v), ha="center", va="bottom", fontsize=6)
+            if b:
+                ax.plot(xi, v, marker="^", color="k", markersize=5)
+        if m.realistic_value is not None:
+            ax.axhline(m.realistic_value, color="k", linestyle="--", linewidth=0.8)
+        ax.set_ylim(0, 1.15 * max(values + [m.realistic_value or 0.0]) or 1.0)
+        ax.set_xticks(x)
+        ax.set_xticklabels(names, rotation=45, ha="right", fontsize=7)
+        ax.set_title("%s [%s]" % (m.label, m.unit), fontsize=8)
+        ax.tick_params(axis="y", labelsize=7)
+        ax.grid(True, axis="y", linewidth=0.3)
+    fig.suptitle("Largest value of each effect alone at which the robot still balances %g s "
+                 "(bars; triangle: at least that, the search's upper end; dashed: the realistic brick)"
+                 % res["_meta"]["duration_s"], fontsize=9)
+    fig.tight_layout(rect=(0, 0, 1, 0.92))
     return _write(fig, path)
 
 

@@ -55,15 +55,12 @@ def trial(base, gains_path, zero_kw, mode, angle, value):
 
     x0 = [0.0] * 10
     x0[ANGLES[angle]] = float(value)
-    limit = angle_limits()[angle]
-    if mode == "firmware" and abs(value) >= limit:
-        # the firmware refuses a start pose on its stop limit (a "fall" at its first tick): the
-        # bracket's top is released from the last float inside it
-        x0[ANGLES[angle]] = float(np.copysign(np.nextafter(limit, 0.0), value))
     sc = dataclasses.replace(base, x0_si=tuple(x0), xhat0_si=None, gains=gains_path)
     doc = gains_document(gains_path, zero_kw)
     if mode == "nonlinear":
         run = simulate_nonlinear(gains_from_dict(doc, gains_path), sc)
+    elif abs(value) >= angle_limits()[angle]:
+        return False    # the firmware refuses to be told a start pose at its stop limit (tipbot_fw.config)
     else:
         run = run_firmware(sc, gains_doc=doc, sysfs=False, keep_rows=False)
     return recovered(run)

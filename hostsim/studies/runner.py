@@ -36,7 +36,8 @@ def run_scenario(sc, modes=None, sysfs=True, say=None):
                 run = simulate_nonlinear(gs, sc, k_pd)
             else:
                 doc = None if k_pd_file is None else pd_gains_document(_document(sc.gains), k_pd_file)
-                run = run_firmware(sc, gains_doc=doc, sysfs=sysfs)
+                # the brick's timing and mode writes act through the fake EV3 tree only
+                run = run_firmware(sc, gains_doc=doc, sysfs=sysfs or sc.brick.needs_sysfs)
             run = runs[label] = dataclasses.replace(run, wall_s=time.perf_counter() - t0)
             if say:
                 say("  %-20s %6.2f s simulated in %5.2f s" % (label, run.t_s[-1], run.wall_s))
@@ -83,7 +84,8 @@ def run_and_write(sc, out_dir, modes=None, sysfs=True, plots=True, say=None):
         "plant_method": sc.plant_method,
         "duration_s": sc.duration_s,
         "u_max_v": gs.u_max_v,
-        "firmware_device": "fake EV3 sysfs" if sysfs else "in-memory",
+        "firmware_device": "fake EV3 sysfs" if sysfs or sc.brick.needs_sysfs else "in-memory",
+        "brick": dataclasses.asdict(sc.brick),
         "runs": per_run,
         "expect": expect_report,
         "expect_ok": ok,

@@ -1,10 +1,13 @@
 """``python -m hostsim sim`` (``make sim``): the paper's experiments, robustness, the report.
 
-Runs scenarios/section7, section8, appendix_d (the paper's) and section8_physical (our
-robot's gains on the physical model) in all their modes, a short region-of-attraction and
-Monte Carlo study, writes everything under out/sim/ (per scenario: metrics.json, figures,
-runs.npz; robustness/; report.md) and prints the summary tables. Builds a missing gains file
-first (python -m hostsim gains). Exit status 1 if a scenario's expectations fail.
+Runs scenarios/section7, section8, appendix_d (the paper's), section8_physical (our robot's
+gains on the physical model) and brick_realistic (the firmware on an EV3 as unkind as the real
+one) in all their modes, a short region-of-attraction study, a Monte Carlo on today's
+simulated robot and one on the realistic brick, the margins of each brick effect alone and
+what each costs (hostsim.studies.margins, coarse), writes everything under out/sim/ (per
+scenario: metrics.json, figures, runs.npz; robustness/; report.md) and prints the summary
+tables. Builds a missing gains file first (python -m hostsim gains). Exit status 1 if a
+scenario's expectations fail.
 """
 import argparse
 import os
@@ -13,7 +16,8 @@ import time
 
 from hostsim.paths import REPO_ROOT, out_dir
 
-SCENARIOS = ("section7", "section7_governed", "section8", "appendix_d", "section8_physical")
+SCENARIOS = ("section7", "section7_governed", "section8", "appendix_d", "section8_physical", "brick_realistic")
+ABLATION_GAINS = ("gains/physical.json",)     # what make deploy ships
 GAINS = ("paper", "physical")
 
 
@@ -48,6 +52,7 @@ def firmware_note(docs, mc):
 
 
 def main(argv=None):
+    from hostsim.studies import margins
     from hostsim.studies import montecarlo
     from hostsim.studies import report
     from hostsim.studies import roa
@@ -62,11 +67,15 @@ def main(argv=None):
                     help="firmware device layer for the scenarios (default: the fake EV3 sysfs tree)")
     ap.add_argument("--mc-runs", type=int, default=40, help="Monte Carlo runs per gains file (default 40; "
                     "python -m hostsim montecarlo for the full study)")
+    ap.add_argument("--mc-brick-runs", type=int, default=20, help="Monte Carlo runs per gains file on the realistic "
+                    "brick (default 20; python -m hostsim montecarlo --brick for more)")
     ap.add_argument("--mc-duration", type=float, default=10.0, help="seconds per Monte Carlo run (default 10)")
     ap.add_argument("--roa-tol", type=float, default=0.02, help="region of attraction bisection resolution in rad (default 0.02)")
     ap.add_argument("--kw0", action="store_true", help="also run the robustness with K_w = 0 (a diagnosis: "
                     "what the disturbance compensation costs or buys in the firmware)")
-    ap.add_argument("--no-robustness", action="store_true", help="skip the region of attraction and the Monte Carlo")
+    ap.add_argument("--no-robustness", action="store_true", help="skip the region of attraction, the Monte Carlos "
+                    "and the margins")
+    ap.add_argument("--no-margins", action="store_true", help="skip the margins and the effects' costs")
     ap.add_argument("--jobs", type=int, default=None, help="worker processes (default: all cores)")
     args = ap.parse_args(argv)
 
@@ -84,7 +93,7 @@ def main(argv=None):
         doc = runner.run_and_write(sc, os.path.join(args.out, sc.name), sysfs=args.device == "sysfs", say=say)
         docs.append(doc)
         ok &= doc["expect_ok"]
-    roa_res = mc_res = None
+    roa_res = mc_res = mc_brick = margins_res = None
     if not args.no_robustness:
         rdir = os.path.join(args.out, "robustness")
         say("region of attraction")
@@ -93,21 +102,36 @@ def main(argv=None):
         say("Monte Carlo")
         mc_res = montecarlo.run_montecarlo(args.mc_runs, args.mc_duration, kw0=args.kw0, jobs=args.jobs)
         montecarlo.write(mc_res, rdir)
+        say("Monte Carlo on the realistic brick")
+        mc_brick = montecarlo.run_montecarlo(args.mc_brick_runs, args.mc_duration, jobs=args.jobs,
+                                             base=montecarlo.BRICK_SCENARIO, desc="Monte Carlo (brick)")
+        montecarlo.write(mc_brick, rdir, "montecarlo_brick")
+        if not args.no_margins:
+            say("margins (coarse) and what each effect costs")
+            margins_res = margins.run_margins(coarse=True, ablation_gains=ABLATION_GAINS, jobs=args.jobs)
+            margins.write(margins_res, rdir)
     note = firmware_note(docs, mc_res)
-    path = report.write_report(args.out, docs, roa_res, mc_res, firmware_note=note)
+    path = report.write_report(args.out, docs, roa_res, mc_res, firmware_note=note, mc_brick=mc_brick,
+                               margins=margins_res)
     for doc in docs:
         print(runner.format_summary(doc))
         print()
     print("(%s)" % runner.SUMMARY_NOTE)
     print()
-    if roa_res:
-        print("Region of attraction (largest recovered initial angle)")
-        print(roa.format_table(roa_res))
-        print()
-    if mc_res:
-        print("Monte Carlo (firmware in the loop, physical model)")
-        print(montecarlo.format_table(mc_res))
-        print()
+    tables = [
+        ("Region of attraction (largest recovered initial angle)", roa_res and roa.format_table(roa_res)),
+        ("Monte Carlo (firmware in the loop, physical model)", mc_res and montecarlo.format_table(mc_res)),
+        ("Monte Carlo on the realistic brick", mc_brick and montecarlo.format_table(mc_brick)),
+        ("Margins: the largest value of each effect alone at which the robot still balances (coarse)",
+         margins_res and margins.margin_table(margins_res)),
+        ("The realistic brick: as shipped, then with the overrun stop lifted",
+         margins_res and margins.ablation_table(margins_res)),
+    ]
+    for title, table in tables:
+        if table:
+            print(title)
+            print(table)
+            print()
     if note:
         print(note)
         print()

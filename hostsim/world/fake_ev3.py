@@ -47,8 +47,8 @@ writer may see half of each. So:
 
 Counting and failure injection
 ------------------------------
-:class:`CountingIO` has the ``open/pread/pwrite/close`` API of :mod:`os` (what Ev3Devices takes
-as ``io``), counts calls per path and can make chosen calls raise ``OSError``; ``fake.io`` is one
+:class:`CountingIO` has the ``open/pread/pwrite/write/close`` API of :mod:`os` (what Ev3Devices
+and the lights and speaker of tipbot_fw.feedback take as ``io``), counts calls per path and can make chosen calls raise ``OSError``; ``fake.io`` is one
 bound to this tree. It is an in-process add-on only: the files remain the truth.
 """
 
@@ -91,6 +91,10 @@ _ANGLE_MODES = ('GYRO-ANG', 'GYRO-G&A')
 #: switched (tipbot_fw.ev3io; ev3dev waits for new-mode data up to 50 ms per try): for this
 #: long after the switch the fake keeps the previous mode's record in bin_data and value<N>.
 GYRO_MODE_SWITCH_S = 0.05
+#: A mode write waits for data in the new mode: 10 tries of 50 ms, then ETIMEDOUT
+#: (sensors/ev3_uart_sensor_ld.c; ../shared/ev3-hardware.md).
+GYRO_MODE_TRY_S = 0.05
+GYRO_MODE_TRIES = 10
 
 #: ev3dev's max_speed (tacho counts/s) per driver.
 MAX_SPEED = {'lego-ev3-l-motor': 1050, 'lego-ev3-m-motor': 1560, 'lego-nxt-motor': 1020}
@@ -141,9 +145,9 @@ class FakeEV3Error(Exception):
 
 
 class CountingIO(object):
-    """``os``-compatible open/pread/pwrite/close that counts calls and can inject failures.
+    """``os``-compatible open/pread/pwrite/write/close that counts calls and can inject failures.
 
-    ``reads``/``writes`` count pread/pwrite calls (failed ones too: they were attempted);
+    ``reads``/``writes`` count pread and pwrite/write calls (failed ones too: they were attempted);
     ``by_path`` counts them per (op, path relative to ``root``); ``log`` lists
     (op, relpath, bytes written or bytes read). ``open_fds`` maps the fds still open to paths.
     """
@@ -168,9 +172,9 @@ class CountingIO(object):
         return path
 
     def fail(self, relpath, op='pread', err=errno.ENODEV):
-        """Make every ``op`` ('pread', 'pwrite' or 'open') on ``relpath`` raise OSError(err)."""
-        if op not in ('pread', 'pwrite', 'open'):
-            raise ValueError('op must be pread, pwrite or open, not %r' % (op,))
+        """Make every ``op`` ('pread', 'pwrite', 'write' or 'open') on ``relpath`` raise OSError(err)."""
+        if op not in ('pread', 'pwrite', 'write', 'open'):
+            raise ValueError('op must be pread, pwrite, write or open, not %r' % (op,))
         self._failures[(op, relpath)] = err
 
     def clear_failures(self):
@@ -205,13 +209,22 @@ class CountingIO(object):
         self._maybe_fail('pwrite', rel)
         return os.pwrite(fd, data, offset)
 
+    def write(self, fd, data):
+        """write(2), for what has no offset (the speaker's input device: tipbot_fw.feedback)."""
+        rel = self.open_fds.get(fd, '<fd %d>' % fd)
+        self.writes += 1
+        self.by_path[('write', rel)] += 1
+        self.log.append(('write', rel, bytes(data)))
+        self._maybe_fail('write', rel)
+        return os.write(fd, data)
+
     def close(self, fd):
         self.open_fds.pop(fd, None)
         os.close(fd)
 
     def writes_to(self, suffix):
         """The bytes written (in order) to paths ending with ``suffix``, from the log."""
-        return [data for op, rel, data in self.log if op == 'pwrite' and rel.endswith(suffix)]
+        return [data for op, rel, data in self.log if op in ('pwrite', 'write') and rel.endswith(suffix)]
 
 
 class _Attr(object):
@@ -278,11 +291,16 @@ class FakeEV3(object):
 
     Time: a driver that passes the time to :meth:`poll` gets the gyro's mode switch delay
     (``gyro_mode_switch_s``: the previous mode's readings for that long after the switch);
-    without it the switch is immediate.
+    without it the switch is immediate. A driver that times the clients' accesses
+    (hostsim.world.brick_timing) asks :meth:`write_cost` how long a write blocks:
+    ``gyro_mode_write_s`` for a gyro mode write (the driver waits for data in the new mode),
+    and with ``gyro_mode_timeout`` (an old sensor stuck in GYRO-G&A) every mode write blocks
+    10 x 50 ms and fails with ETIMEDOUT.
     """
 
     def __init__(self, root_dir=None, battery_v=8.0, motors=None, gyro_port='in2',
-                 gyro_driver='lego-ev3-gyro', gyro_mode_switch_s=GYRO_MODE_SWITCH_S):
+                 gyro_driver='lego-ev3-gyro', gyro_mode_switch_s=GYRO_MODE_SWITCH_S, gyro_mode_write_s=0.0,
+                 gyro_mode_timeout=False):
         self._own_root = root_dir is None
         if root_dir is None:
             root_dir = tempfile.mkdtemp(prefix='fake-ev3-')
@@ -296,6 +314,8 @@ class FakeEV3(object):
         self.errors = []
         self._fds = []
         self.gyro_mode_switch_s = gyro_mode_switch_s
+        self.gyro_mode_write_s = gyro_mode_write_s
+        self.gyro_mode_timeout = gyro_mode_timeout
         self.now_s = None          # the time of the latest poll(t_s), if the driver gives one
 
         spec = dict(DEFAULT_MOTORS)
@@ -318,6 +338,11 @@ class FakeEV3(object):
         self._make_board_info()
         self._make_lights()
         self._make_speaker()
+        # relpath -> device, for poll_attribute
+        self._by_relpath = {}
+        for dev in list(self._motors.values()) + ([self._gyro] if self._gyro else []):
+            for name, attr in dev.attrs.items():
+                self._by_relpath[os.path.relpath(attr.path, self.sysfs_root)] = dev
 
     # ----------------------------------------------------------------- tree creation
     def _new_file(self, path, content, mode, size=None):
@@ -554,24 +579,10 @@ class FakeEV3(object):
         return value
 
     def _poll_motor(self, m):
+        self._poll_command(m)
+        self._poll_duty(m)
         where = 'port %s' % m.port
         attrs = m.attrs
-        sig = self._command_sig(attrs['command'])
-        if sig != attrs['command'].sig:
-            attrs['command'].sig = sig
-            cmd = self._choice(where, 'command', sig[0], MOTOR_COMMANDS) if sig[0] else None
-            if cmd is not None:
-                m.command = cmd
-                m.running = cmd == 'run-direct'
-                if cmd == 'reset':
-                    m.reset_offset = m.hw_counts
-                elif cmd not in ('run-direct', 'stop'):
-                    self._error(where, 'command', sig[0], 'not simulated by the fake')
-        raw = self._read_client(attrs['duty_cycle_sp'])
-        if raw is not None:
-            value = self._int(where, 'duty_cycle_sp', raw, _DUTY_LIMIT)
-            if value is not None:
-                m.duty_sp = value
         raw = self._read_client(attrs['polarity'])
         if raw is not None:
             value = self._choice(where, 'polarity', raw, POLARITIES)
@@ -586,7 +597,33 @@ class FakeEV3(object):
             raw = self._read_client(attrs[name])
             if raw is not None:
                 self._int(where, name, raw)
+        self._apply_motor(m)
+        self._publish_position(m)
+
+    def _poll_command(self, m):
+        attr = m.attrs['command']
+        sig = self._command_sig(attr)
+        if sig != attr.sig:
+            attr.sig = sig
+            cmd = self._choice('port %s' % m.port, 'command', sig[0], MOTOR_COMMANDS) if sig[0] else None
+            if cmd is not None:
+                m.command = cmd
+                m.running = cmd == 'run-direct'
+                if cmd == 'reset':
+                    m.reset_offset = m.hw_counts
+                elif cmd not in ('run-direct', 'stop'):
+                    self._error('port %s' % m.port, 'command', sig[0], 'not simulated by the fake')
+
+    def _poll_duty(self, m):
+        raw = self._read_client(m.attrs['duty_cycle_sp'])
+        if raw is not None:
+            value = self._int('port %s' % m.port, 'duty_cycle_sp', raw, _DUTY_LIMIT)
+            if value is not None:
+                m.duty_sp = value
+
+    def _apply_motor(self, m):
         m.duty = m.sign() * m.duty_sp if m.running else 0
+        attrs = m.attrs
         self._put(attrs['duty_cycle'], str(m.duty))
         if m.running:
             state = 'running'
@@ -595,7 +632,6 @@ class FakeEV3(object):
         else:
             state = ''
         self._put(attrs['state'], state)
-        self._publish_position(m)
 
     def _poll_gyro(self, g):
         raw = self._read_client(g.attrs['mode'])
@@ -621,6 +657,46 @@ class FakeEV3(object):
         if self._gyro is not None:
             self._poll_gyro(self._gyro)
         return {port: m.state() for port, m in self._motors.items()}
+
+    def set_time(self, t_s):
+        """The driver's time now (s), as poll(t_s) gives it, without polling (the gyro's
+        mode switch delay runs on it)."""
+        self.now_s = t_s
+
+    def poll_attribute(self, relpath, t_s=None):
+        """What :meth:`poll` does, for one attribute a client just wrote (``relpath`` as
+        CountingIO names it): a driver that sees every write (hostsim.world.brick_timing)
+        applies each at its own moment without re-reading the whole tree. -> the motor
+        port it changed, or None."""
+        if t_s is not None:
+            self.now_s = t_s
+        dev = self._by_relpath.get(relpath)
+        if dev is None:
+            return None
+        if dev is self._gyro:
+            self._poll_gyro(dev)
+            return None
+        if relpath.endswith('/duty_cycle_sp'):
+            self._poll_duty(dev)
+            self._apply_motor(dev)
+        elif relpath.endswith('/command'):
+            self._poll_command(dev)
+            self._apply_motor(dev)
+        else:
+            self._poll_motor(dev)
+        return dev.port
+
+    def write_cost(self, relpath, data):
+        """(seconds the write blocks, errno it fails with or None), as the driver would: only a
+        gyro mode write to another mode costs (see the class docstring)."""
+        g = self._gyro
+        if g is None or self._by_relpath.get(relpath) is not g or not relpath.endswith('/mode'):
+            return 0.0, None
+        if self.gyro_mode_timeout:
+            return GYRO_MODE_TRY_S * GYRO_MODE_TRIES, errno.ETIMEDOUT
+        if parse_choice(bytes(data), GYRO_MODE_NAMES) in (None, g.mode):
+            return 0.0, None
+        return self.gyro_mode_write_s, None
 
     # ----------------------------------------------------------------- queries
     def lights(self):

@@ -90,6 +90,23 @@ class Plant:
             f = [fi + ei for fi, ei in zip(f, f_ext)]
         return qd + solve_spd5(m, f)
 
+    def motor_angles(self):
+        """The angles the 4 motors' encoders measure (rad): each wheel relative to link 1
+        (d / R_w - th1), the joints (th2, th3)."""
+        x = self.x_si.tolist()
+        rw = self.model.params["rw_m"]
+        return [x[0] / rw - x[2], x[1] / rw - x[2], x[3], x[4]]
+
+    def motor_speeds(self):
+        x = self.x_si.tolist()
+        rw = self.model.params["rw_m"]
+        return [x[5] / rw - x[7], x[6] / rw - x[7], x[8], x[9]]
+
+    def apply_impulse(self, p_gen):
+        """Add a generalized impulse (5, the model's units: N s per unit of d, N m s for the
+        angles) to the speeds: q' += M(q)^-1 p_gen."""
+        self.x[5:] += np.linalg.solve(self.model.mass_matrix(self.x[:5]), np.asarray(p_gen, dtype=float))
+
     def advance(self, u_v, duration_s, f_ext=None):
         """Integrate for duration_s with inputs u_v held (steps of dt_s, a shorter last one).
 
@@ -126,3 +143,34 @@ class Plant:
         self.x = np.array(x)
         self.t_s += duration_s
         return self.x
+
+
+def link_push_impulse(model, q, link, impulse_n_s):
+    """The generalized impulse (5, the model's units) of a horizontal impulse (N s, forward
+    positive) at the centre of mass of link 1, 2 or 3, with the robot at q: J^T P, J the
+    partial derivatives of that point's forward position (the links are rods of length 2 l_i
+    stacked on the axle, hostsim.model.equations)."""
+    p = model.params
+    th1, th12 = q[2], q[2] + q[3]
+    th123 = th12 + q[4]
+    l1, l2, l3 = p["l1_m"], p["l2_m"], p["l3_m"]
+    half_d = 0.5 * model.variant.d_scale_m        # the axle moves by (d_r + d_l) / 2
+    if link == 1:
+        j = [half_d, half_d, l1 * math.cos(th1), 0.0, 0.0]
+    elif link == 2:
+        j = [half_d, half_d, 2 * l1 * math.cos(th1) + l2 * math.cos(th12), l2 * math.cos(th12), 0.0]
+    elif link == 3:
+        c3 = l3 * math.cos(th123)
+        c2 = 2 * l2 * math.cos(th12) + c3
+        j = [half_d, half_d, 2 * l1 * math.cos(th1) + c2, c2, c3]
+    else:
+        raise ValueError("link must be 1, 2 or 3, got %r" % (link,))
+    return [impulse_n_s * v for v in j]
+
+
+def apply_push(plant, push):
+    """A scenario push (hostsim.sim.scenario.Push) on the plant, now."""
+    if push.impulse_n_s is None:
+        plant.x[7] += push.th1_dot_rad_s
+    else:
+        plant.apply_impulse(link_push_impulse(plant.model, plant.x[:5], push.link, push.impulse_n_s))

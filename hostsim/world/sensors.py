@@ -33,7 +33,7 @@ _DEG = 180.0 / math.pi
 
 
 def _counts(angle_rad, sign, counts_per_rot):
-    return int(math.floor(sign * angle_rad * counts_per_rot / (2.0 * math.pi) + 0.5))
+    return counts_of(angle_rad, sign, counts_per_rot, False)
 
 
 class SensorModel(object):
@@ -101,3 +101,73 @@ class SensorModel(object):
         """-> (encoder counts, (gyro angle, rate), battery volts): one simulation step's readings,
         in the form FakeEV3.set_readings takes."""
         return self.encoders(x), self.gyro(x, t_s), self.battery(current_a)
+
+
+def counts_of(angle_rad, sign, counts_per_rot, truncate):
+    """Encoder counts of an angle: the edges passed (floor) with the start pose on an edge
+    (``truncate``, as the EV3's driver counts), or halfway between two (rounding, above)."""
+    return int(math.floor(sign * angle_rad * counts_per_rot / (2.0 * math.pi) + (0.0 if truncate else 0.5)))
+
+
+class EncoderModel(object):
+    """The four tacho encoders as the EV3 driver reports them: ``position`` is updated every
+    ``update_s`` (the PRU's 2 ms; 0: read at the instant of the read) and, with ``truncate``,
+    counts whole edges passed instead of rounding to the nearest count.
+
+    on_step(k, angles) is fed every plant step k (of dt_s) with the motors' angles (the
+    rotors', hostsim.world.drivetrain); read(angles) gives the counts a read sees now."""
+
+    def __init__(self, motor_signs, counts_per_rot, dt_s, update_s=0.0, truncate=False):
+        self.signs = tuple(motor_signs)
+        self.cpr = tuple(counts_per_rot)
+        self.truncate = bool(truncate)
+        self.every = int(round(update_s / dt_s)) if update_s > 0 else 0
+        if update_s > 0 and (self.every < 1 or abs(self.every * dt_s - update_s) > 1e-9):
+            raise ValueError("encoder update period %r s is not a multiple of the plant step %r s" % (update_s, dt_s))
+        self.latched = None
+
+    def counts(self, angles):
+        s, n, tr = self.signs, self.cpr, self.truncate
+        return tuple(counts_of(angles[i], s[i], n[i], tr) for i in range(4))
+
+    def on_step(self, k, angles):
+        if self.every and k % self.every == 0:
+            self.latched = self.counts(angles)
+
+    def read(self, angles):
+        if self.every and self.latched is not None:
+            return self.latched
+        return self.counts(angles)
+
+
+class BatteryModel(object):
+    """The battery under the motors' load, as ``voltage_now`` reports it.
+
+    The H-bridges draw, from the battery, each motor's current times its duty, and the motor's
+    current is (duty x V - Ke omega) / Ra; with the internal resistance r the terminal
+    voltage V solves V = V_oc - r sum(d_i (d_i V - Ke_i omega_i) / Ra_i), i.e.
+    V = (V_oc + r sum(d_i Ke_i omega_i / Ra_i)) / (1 + r sum(d_i^2 / Ra_i)). The reading is
+    quantized down to ``quantum_v`` (2.44 mV steps of the ADC)."""
+
+    def __init__(self, v_oc, r_ohm=0.0, quantum_v=0.0, ke_v_s=(0.0,) * 4, ra_ohm=(1.0,) * 4):
+        self.v_oc = float(v_oc)
+        self.r = float(r_ohm)
+        self.quantum = float(quantum_v)
+        self.ke_ra = [k / r for k, r in zip(ke_v_s, ra_ohm)]
+        self.inv_ra = [1.0 / r for r in ra_ohm]
+
+    def voltage(self, fractions, speeds):
+        """Terminal voltage (V) with duty fractions (signed, -1..1, in the model's direction)
+        and motor speeds (rad/s, relative to the stator)."""
+        if not self.r:
+            return self.v_oc
+        num, den = self.v_oc, 1.0
+        for d, w, kr, ir in zip(fractions, speeds, self.ke_ra, self.inv_ra):
+            num += self.r * d * kr * w
+            den += self.r * d * d * ir
+        return num / den
+
+    def reading(self, volts):
+        if self.quantum:
+            return math.floor(volts / self.quantum + 1e-9) * self.quantum
+        return volts

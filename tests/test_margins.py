@@ -1,0 +1,61 @@
+"""The margin sweep and the effects' costs (hostsim.studies.margins), on short runs."""
+import dataclasses
+
+import pytest
+
+from hostsim.sim.scenario import Brick, load_scenario
+from hostsim.studies import margins
+from hostsim.studies.report import brick_table, margins_section
+
+
+def test_each_margin_moves_only_its_own_effect():
+    base = dataclasses.replace(load_scenario(margins.BASE_SCENARIO), brick=Brick())
+    sc = margins.margin_scenario(base, "backlash", 6.0, 0.005)
+    assert sc.brick.backlash_deg == (6.0, 6.0, 6.0, 1.0) and not sc.brick.timed
+    assert margins.margin_scenario(base, "deadband", 4.0, 0.005).brick.friction_deadband_pct == (4, 4, 4, 10)
+    sc = margins.margin_scenario(base, "io_delay", 12.0, 0.005)
+    assert sc.extra_delay_ticks == 2 and sc.io_latency_s == pytest.approx(0.002)
+    sc = margins.margin_scenario(base, "push", -0.3, 0.005)
+    assert sc.pushes[0].link == 3 and sc.pushes[0].impulse_n_s == -0.3 and sc.brick.ideal
+    assert margins.margin_scenario(base, "gyro_drift", -0.01, 0.005).brick.gyro_bias_ramp_dps_s == -0.01
+    assert margins.margin_scenario(base, "gyro_freeze", 100.0, 0.005).brick.gyro_freeze_s == pytest.approx(0.1)
+
+
+def test_bisection_finds_the_push_the_robot_takes_and_the_report_shows_it(monkeypatch):
+    monkeypatch.setattr(margins, "PUSH_AT_S", 0.5)
+    res = margins.run_margins(gains_paths=("gains/physical.json",), coarse=True, ablation_gains=(), jobs=1,
+                              effects=("push",), duration_s=2.0)
+    rows = res["margins"]
+    assert [r["sign"] for r in rows] == [1, -1]
+    for r in rows:
+        ok = [v for v, good in r["trials"] if good]
+        bad = [v for v, good in r["trials"] if not good]
+        assert ok[0] == 0.0 and bad and r["margin"] == max(ok) < min(bad) <= r["margin"] + r["tol"]
+        assert 0.05 < r["margin"] < 1.0
+    cells = margins.margin_cells(res, "physical")
+    assert cells["push"].startswith("%g (" % round(min(r["margin"] for r in rows), 6)) and cells["backlash"] == "-"
+    text = "\n".join(margins_section(res))
+    assert "push on link 3 (N s)" in text and "robustness/margins.png" in text
+
+
+def test_ablation_rows_switch_the_effects_as_named():
+    base = dataclasses.replace(load_scenario(margins.BASE_SCENARIO), duration_s=0.3)
+    shipped = margins.ablation_run(("physical", "gains/physical.json", base, None, 0, False))
+    assert shipped["off"] == "none (all on)" and shipped["overrun_fraction"] is not None
+    alone = margins.ablation_run(("physical", "gains/physical.json", base, "only backlash", 0, True))
+    but = margins.ablation_run(("physical", "gains/physical.json", base, "timing", 0, True))
+    assert alone["overrun_fraction"] == 0.0 and but["overrun_fraction"] == 0.0     # no timing in either
+    res = {"ablation": [margins.aggregate([r]) for r in (shipped, alone, but)]}
+    order = [r["off"] for r in margins.ranked_ablation(res)]
+    assert order == ["none (all on)", "timing", "only backlash"]
+    assert margins.costliest(res, "physical") == ["backlash"]
+    assert "all but timing" in margins.ablation_table(res)
+
+
+def test_the_report_lists_the_realistic_bricks_values_with_their_sources():
+    brick = load_scenario(margins.BASE_SCENARIO).brick
+    table = brick_table({"brick": dataclasses.asdict(brick)})
+    rows = table.splitlines()[2:]
+    assert len(rows) == len(brick.sources) - 1              # every effect but the (off) timeout fault
+    assert "| `backlash_deg` | [3.0, 3.0, 3.0, 0.5] | ev3-hardware.md:" in table
+    assert all("ev3-hardware.md" in r or "assumption" in r or "estimate" in r for r in rows)
