@@ -20,6 +20,7 @@ COMMANDS = {
     "montecarlo": ("hostsim.studies.montecarlo", "Monte Carlo robustness of the firmware in the loop"),
     "roa": ("hostsim.studies.roa", "region of attraction (largest recovered initial angles)"),
     "margins": ("hostsim.studies.margins", "how much of each brick imperfection the robot takes; what each costs"),
+    "push-limit": ("hostsim.studies.push_limit", "the largest push on link 3 any controller within u_max recovers (LP bound)"),
     "bench-sim": ("hostsim.studies.sim_bench", "simulation speed: real-time factor, Monte Carlo throughput"),
     "replay": ("hostsim.logs.replay", "replay a robot log on the host (make replay)"),
     "identify": ("hostsim.logs.identify", "identify motor parameters from identify logs"),
