@@ -70,3 +70,11 @@ def test_the_command_writes_both_bounds_per_direction(tmp_path, capsys):
     assert {(r["sign"], r["joint_limits"]) for r in res["rows"]} == {(1, False), (1, True), (-1, False), (-1, True)}
     assert all(r["recoverable_n_s"] <= r["certain_loss_n_s"] + 1e-9 for r in res["rows"])
     assert "certain loss N s" in capsys.readouterr().out
+
+
+def test_a_bad_gains_file_is_one_line_naming_it(tmp_path, capsys):
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"ts_s": 0.005}')
+    assert pl.main(["--gains", str(bad), "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and str(bad) in err and "schema_version" in err

@@ -12,31 +12,37 @@ the four motors?
 is a jump of the generalized velocities, M^-1 J^T P (hostsim.world.plant.link_push_impulse, as
 the simulator applies it): the post-push state is P x_p, linear in P.
 
-**The bound.** On the discrete model the gains file is designed on (x+ = A x + B u at ts_s,
-SI), two linear programs in (P, u_0..u_{N-1}, x_1..x_N) maximize P over a horizon of N ticks
-(scipy.optimize.linprog, HiGHS):
+**The bounds.** On the discrete model the gains file is designed on (x+ = A x + B u at ts_s,
+SI), two linear programs in P and the inputs u_0..u_{N-1} maximize P over a horizon of N
+ticks (scipy.optimize.linprog, HiGHS). Only A's unstable modes z = w' x (z+ = lambda z +
+w' B u, |lambda| > 1) decide: the others decay by themselves once u = 0.
 
-- *recoverable* (a lower bound): x_N is at rest and upright (every angle and rate zero; the
-  wheels may stand anywhere, as the margin study asks): an input sequence that does it exists;
-- *certain loss* (an upper bound): only the unstable modes are constrained, each to what an
-  infinite horizon could still bring back: for a mode z = w' x with z+ = lambda z + w' B u,
-  |z_N| <= umax ||w' B||_1 / (|lambda| - 1) is necessary (sum the geometric series of the
-  largest inputs). Beyond this P no controller, however clever, recovers the linear model.
+- *recoverable* (a lower bound): every unstable mode is zero at N; from there u = 0 lets the
+  robot settle upright (the wheels wherever they stopped, as the margin study allows);
+- *certain loss* (an upper bound): every unstable mode at N is within what an infinite
+  horizon could still bring back, |z_N| <= umax ||w' B||_1 / (|lambda| - 1) (the geometric
+  series of the largest inputs): necessary, so beyond this P no controller, however clever,
+  recovers the linear model.
 
-The recoverable bound grows with N, the certain-loss bound shrinks, and both meet as N grows:
-the unstable modes' time constants are 0.1-0.2 s, so a 2 s horizon settles the answer. With
-``joint limits`` the angles also stay within the firmware's stop limits (limits.th1_rad,
-th2_rad, th3_rad of the default firmware config) at every tick; the table gives both.
+The recoverable bound grows with N, the certain-loss bound shrinks, and they meet: the
+unstable modes' time constants are 0.1-0.2 s, so 2 s settles the answer. The bound is
+proportional to u_max (the LPs scale) as long as no state limit binds.
+
+**Joint limits.** With them the angles also stay within the firmware's stop limits
+(limits.th1_rad, th2_rad, th3_rad of the default firmware config) at every tick, and the
+recoverable LP asks the robot at rest and upright at N (so that it stays within them after):
+the states become variables, and the solver holds them only up to 2 s horizons
+(STATE_LP_MAX_HORIZON_S). The table gives the bounds with and without.
 
 **Validation** (``--validate``): at 95 % of the recoverable bound of the physical model, each
-direction, the
-LP's plan (made with 97 % of u_max, the rest left for feedback) is tracked on the nonlinear
-plant (u = sat(u_plan - K (x - x_plan)), exact state), then the LQR law holds the robot where
-the plan left it; the same push with the LQR law alone is run beside it.
+direction, the joint-limited LP's plan (made with 97 % of u_max, the rest left for feedback) is
+tracked on the nonlinear plant (u = sat(u_plan - K (x - x_plan)), exact state), then the LQR
+law holds the robot where the plan left it; the same push with the LQR law alone beside it.
 """
 import argparse
 import json
 import os
+import sys
 import time
 
 import numpy as np
@@ -61,37 +67,35 @@ def load_design(gains_path, u_max_v=None):
     """-> dict: the gains' discrete model (SI), the law, the input limit and the push direction."""
     from hostsim.model.equations import RobotModel, state_scale_to_si
     from hostsim.world.plant import link_push_impulse
-    from tipbot_fw.gains import gains_from_dict
+    from tipbot_fw import fields
+    from tipbot_fw.gains import GainsError, gains_from_dict
 
-    with open(gains_path) as f:
-        doc = json.load(f)
+    doc, _ = fields.read_json(gains_path, GainsError)
     g = gains_from_dict(doc, gains_path)
     model = RobotModel(doc["model_variant"], doc["parameters"])
+    q = np.zeros(5)
     x_push = np.zeros(10)
-    x_push[5:] = push_velocity_si(model, PUSH_LINK, link_push_impulse, state_scale_to_si)
+    x_push[5:] = (np.linalg.solve(model.mass_matrix(q), np.asarray(link_push_impulse(model, q, PUSH_LINK, 1.0)))
+                  * np.diag(state_scale_to_si(model.variant))[5:])
     act = list(g.actuated_inputs)
     return {"variant": g.model_variant, "ts_s": g.ts_s, "A": g.A, "B": g.B[:, act], "K": g.K[act],
             "u_max_v": float(g.u_max_v if u_max_v is None else u_max_v), "x_push": x_push, "model": model,
             "actuated": act}
 
 
-def push_velocity_si(model, link, impulse, scale_to_si):
-    """The generalized velocity jump (SI) of 1 N s at the link's centre of mass, robot upright."""
-    q = np.zeros(5)
-    dq = np.linalg.solve(model.mass_matrix(q), np.asarray(impulse(model, q, link, 1.0)))
-    return dq * np.diag(scale_to_si(model.variant))[5:]
-
-
 def unstable_modes(a, b, u_max_v):
-    """[(w, radius)]: left eigenvectors w (complex) of A's modes with |lambda| >= 1 + 1e-9, and
-    the largest |w' x| from which an infinite horizon of |u| <= u_max can still bring the mode
-    back (sum over k of |lambda|^-(k+1) umax ||w' B||_1)."""
+    """[(lambda, w, radius)]: A's modes with |lambda| > 1, their left eigenvectors w (complex)
+    and the largest |w' x| from which an infinite horizon of |u| <= u_max can still bring the
+    mode back (sum over k of |lambda|^-(k+1) u_max ||w' B||_1)."""
     lam, vl = np.linalg.eig(a.T)
-    out = []
-    for i in np.flatnonzero(np.abs(lam) > 1.0 + 1e-9):
-        w = vl[:, i]
-        out.append((w, u_max_v * np.sum(np.abs(w @ b)) / (abs(lam[i]) - 1.0)))
-    return out
+    return [(lam[i], vl[:, i], u_max_v * np.sum(np.abs(vl[:, i] @ b)) / (abs(lam[i]) - 1.0))
+            for i in np.flatnonzero(np.abs(lam) > 1.0 + 1e-9)]
+
+
+def _parts(row, lam):
+    """The real rows of a mode's constraint: a complex pair's real and imaginary parts (each
+    within the modulus bound: a relaxation, still an upper bound)."""
+    return [row.real, row.imag] if abs(lam.imag) > 1e-12 else [row.real]
 
 
 class LPFailed(RuntimeError):
@@ -99,19 +103,17 @@ class LPFailed(RuntimeError):
 
 
 def max_push(d, horizon_s, mode, joint_limits=None, sign=1.0, u_frac=1.0):
-    """The largest push (N s, >= 0) in direction sign for one LP.
+    """The largest push (N s, >= 0) in direction sign for one LP (see the module docstring).
 
-    mode "recover": the unstable modes brought to zero at N (with joint limits: the robot at
-    rest and upright at N), whence u = 0 lets it settle; "loss": the unstable modes within
-    their infinite-horizon radius at N. joint_limits: (th1, th2, th3) rad bounds at every
-    tick, or None. -> (push_n_s, u (N x 4), x (N+1 x 10)): x the LP's states with joint
-    limits; without, the model run forward from the push with u, which near the end of a
-    long horizon shows the solver's tolerance amplified by the unstable modes.
+    mode "recover" or "loss"; joint_limits: (th1, th2, th3) rad bounds at every tick, or None;
+    u_frac: the inputs within u_frac u_max. -> (push_n_s, u (N x 4), x (N+1 x 10)): x the LP's
+    states with joint limits; without, the model run forward from the push with u, which near
+    the end of a long horizon shows the solver's tolerance amplified by the unstable modes.
 
-    Without joint limits only the unstable modes are written, z_N = lambda^N (z_0 +
-    sum_k lambda^-(k+1) w' B u_k): decaying coefficients, well conditioned at any horizon.
-    Joint limits need the states as variables, linked by the dynamics, whose rounding the
-    unstable modes amplify by 1.05^N: HiGHS gives up beyond about 2 s (LPFailed)."""
+    Without joint limits only the unstable modes are written, lambda^-N z_N = z_0 +
+    sum_k lambda^-(k+1) w' B u_k: decaying coefficients, well conditioned at any horizon. Joint
+    limits need the states as variables, linked by the dynamics, whose rounding the unstable
+    modes amplify by up to 1.06^N: HiGHS gives up beyond about 2 s (LPFailed)."""
     a, b, x_p = d["A"], d["B"], sign * d["x_push"]
     steps = int(round(horizon_s / d["ts_s"]))
     umax = d["u_max_v"] * u_frac
@@ -126,32 +128,17 @@ def max_push(d, horizon_s, mode, joint_limits=None, sign=1.0, u_frac=1.0):
     return p, u, np.array(x)
 
 
-def _mode_rows(a, b, umax):
-    """Real rows of the unstable modes (a complex pair gives its real and imaginary parts):
-    [(w row, |lambda|, radius)]."""
-    rows = []
-    for w, radius in unstable_modes(a, b, umax):
-        lam = abs((w @ a) @ np.conj(w) / (w @ np.conj(w)))
-        for part in ([w.real, w.imag] if np.any(np.abs(w.imag) > 1e-12) else [w.real]):
-            rows.append((part, lam, radius))
-    return rows
-
-
 def _modal_lp(a, b, x_p, steps, mode, umax):
-    """Variables [P, u_0..u_{N-1}]; each unstable mode scaled by lambda^-N (real modes; a
-    complex pair's parts are taken as the rotation allows: the bound holds on each part)."""
-    lam, vl = np.linalg.eig(a.T)
+    """Variables [P, u_0..u_{N-1}]; each unstable mode scaled by lambda^-N."""
     eqs, ubs, rhs = [], [], []
-    for i in np.flatnonzero(np.abs(lam) > 1.0 + 1e-9):
-        w = vl[:, i]
-        radius = umax * np.sum(np.abs(w @ b)) / (abs(lam[i]) - 1.0)
-        coeff = np.concatenate([[w @ x_p], np.concatenate([lam[i] ** -(k + 1) * (w @ b) for k in range(steps)])])
-        for part in ([coeff.real, coeff.imag] if abs(lam[i].imag) > 1e-12 else [coeff.real]):
+    for lam, w, radius in unstable_modes(a, b, umax):
+        row = np.concatenate([[w @ x_p], np.concatenate([lam ** -(k + 1) * (w @ b) for k in range(steps)])])
+        for part in _parts(row, lam):
             if mode == "recover":
                 eqs.append(part)
             else:
                 ubs += [part, -part]
-                rhs += [abs(lam[i]) ** -steps * radius] * 2
+                rhs += [abs(lam) ** -steps * radius] * 2
     nv = 1 + b.shape[1] * steps
     res = _solve(nv, eqs, ubs, rhs, [(-umax, umax)] * (nv - 1), mode)
     return float(res.x[0]), res.x[1:].reshape(steps, b.shape[1])
@@ -174,9 +161,10 @@ def _state_lp(a, b, x_p, steps, mode, umax, joint_limits):
     if mode == "recover":
         eqs.append(sparse.csr_matrix(last[AT_REST]))
     else:
-        for part, _, radius in _mode_rows(a, b, umax):
-            ubs += [part @ last, -(part @ last)]
-            rhs += [radius] * 2
+        for lam, w, radius in unstable_modes(a, b, umax):
+            for part in _parts(w @ last, lam):
+                ubs += [part, -part]
+                rhs += [radius] * 2
     box = [(None, None)] * n
     for i, lim in zip(ANGLES, joint_limits):
         box[i] = (-lim, lim)
@@ -189,17 +177,20 @@ def _solve(nv, eqs, ubs, rhs, bounds, mode):
     from scipy import sparse
     from scipy.optimize import linprog
 
-    a_eq = sparse.vstack([e if sparse.issparse(e) else sparse.csr_matrix(np.atleast_2d(e)) for e in eqs]) if eqs else None
+    a_eq = None
+    if eqs:
+        a_eq = sparse.vstack([e if sparse.issparse(e) else sparse.csr_matrix(np.atleast_2d(e)) for e in eqs])
     a_ub = sparse.csr_matrix(np.array(ubs)) if ubs else None
     c = np.zeros(nv)
     c[0] = -1.0
-    for method in ("highs", "highs-ipm"):     # long horizons are degenerate: simplex may give up
-        res = linprog(c, A_ub=a_ub, b_ub=rhs or None, A_eq=a_eq, b_eq=None if a_eq is None else np.zeros(a_eq.shape[0]),
-                      bounds=[(0.0, None)] + bounds, method=method)
+    for method in ("highs", "highs-ipm"):     # long horizons are degenerate: the simplex may give up
+        res = linprog(c, A_ub=a_ub, b_ub=rhs or None, A_eq=a_eq,
+                      b_eq=None if a_eq is None else np.zeros(a_eq.shape[0]), bounds=[(0.0, None)] + bounds,
+                      method=method)
         if res.status in (0, 3):
             break
     if res.status == 3:
-        raise ValueError("the %s LP is unbounded: the push direction does not excite an unstable mode" % mode)
+        raise ValueError("the %s LP is unbounded: the push does not excite an unstable mode" % mode)
     if res.status != 0:
         raise LPFailed("the %s LP: %s" % (mode, res.message))
     return res
@@ -328,8 +319,8 @@ def main(argv=None):
     ap.add_argument("--gains", nargs="+", default=list(DEFAULT_GAINS),
                     help="gains files whose discrete model is studied (default gains/paper.json gains/physical.json)")
     ap.add_argument("--horizons", nargs="+", type=float, default=list(DEFAULT_HORIZONS_S),
-                    help="LP horizons in s (default 0.5 1 2 4; with joint limits only up to %g): the two bounds must agree at the "
-                    "longest" % STATE_LP_MAX_HORIZON_S)
+                    help="LP horizons in s (default 0.5 1 2 4; with joint limits only up to %g): the two bounds "
+                    "must agree at the longest" % STATE_LP_MAX_HORIZON_S)
     ap.add_argument("--u-max-v", type=float, default=None,
                     help="the input limit in V (default: each gains file's u_max_v)")
     ap.add_argument("--validate", action="store_true",
@@ -341,10 +332,18 @@ def main(argv=None):
         ap.error("--horizons must be positive")
     if args.u_max_v is not None and not args.u_max_v > 0:
         ap.error("--u-max-v must be positive")
-    res = run_push_limit(args.gains, args.horizons, args.u_max_v, args.validate)
+    from tipbot_fw.gains import GainsError
+    try:
+        res = run_push_limit(args.gains, args.horizons, args.u_max_v, args.validate)
+    except GainsError as exc:
+        print("python -m hostsim push-limit: %s" % exc, file=sys.stderr)
+        return 2
     print("The largest push on link %d's centre of mass any controller with |u| <= u_max recovers "
           "(linear model; target %g N s)" % (PUSH_LINK, TARGET_N_S))
     print(table(res))
+    if any(r["recoverable_n_s"] is None for r in res["rows"]):
+        print("-: the joint-limited LPs stop at %g s horizons (the solver cannot hold the states beyond)"
+              % STATE_LP_MAX_HORIZON_S)
     for r in res["lqr"]:
         print("the gains' LQR law, saturated, exact state, linear model, %s (%s): %.3f N s"
               % (r["variant"], "+" if r["sign"] > 0 else "-", r["lqr_linear_n_s"]))
