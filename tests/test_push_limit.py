@@ -78,3 +78,10 @@ def test_a_bad_gains_file_is_one_line_naming_it(tmp_path, capsys):
     assert pl.main(["--gains", str(bad), "--out", str(tmp_path)]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and str(bad) in err and "schema_version" in err
+
+
+def test_near_the_bound_the_plan_recovers_the_nonlinear_robot_where_the_lqr_law_falls(design):
+    v = pl.validate_nonlinear(design, 2.0, settle_s=0.5)
+    assert v["push_n_s"] == pytest.approx(pl.VALIDATE_FRACTION * v["recoverable_n_s"])
+    assert v["push_n_s"] > pl.lqr_linear_limit(design, tol=2e-3)      # beyond what the shipped law takes
+    assert v["plan then LQR"]["recovered"] and not v["LQR alone"]["recovered"]

@@ -260,24 +260,26 @@ def validate_nonlinear(d, horizon_s, sign=1.0, fraction=VALIDATE_FRACTION, settl
 def _plan_at(d, horizon_s, push_n_s):
     """The recoverable LP's inputs (within PLAN_INPUT_FRACTION of u_max, the rest left to the
     tracking feedback) and states for this push (the LP with the states and the joint limits,
-    at rest at its end). With x_push scaled by the push the LP's
-    largest P is >= 1 if the push is recoverable, and its solution scaled by 1/P is a plan
-    for the push itself (x_0 scales with P, and the constraints are linear and hold 0)."""
-    from hostsim.studies.roa import angle_limits
-    lim = angle_limits()
+    at rest at its end). With x_push scaled by the push the LP's largest P is >= 1 if the push
+    is recoverable, and its solution scaled by 1/P is a plan for the push itself (x_0 scales
+    with P; the constraints are linear, hold 0, and a box shrunk by 1/P stays inside)."""
     p, u, x = max_push(dict(d, x_push=d["x_push"] * push_n_s), min(horizon_s, STATE_LP_MAX_HORIZON_S), "recover",
-                       (lim["th1"], lim["th2"], lim["th3"]), u_frac=PLAN_INPUT_FRACTION)
+                       stop_limits(), u_frac=PLAN_INPUT_FRACTION)
     if p < 1.0:
         raise ValueError("a push of %.3f N s is beyond the plan's bound (%.3f N s)" % (push_n_s, p * push_n_s))
     return u / p, x / p
 
 
-def run_push_limit(gains_paths=DEFAULT_GAINS, horizons_s=DEFAULT_HORIZONS_S, u_max_v=None, validate=False):
-    """-> {"rows": [...], "lqr": [...], "validation": {...} or None, "_meta": {...}}."""
+def stop_limits():
+    """(th1, th2, th3) rad: the default firmware config's stop limits."""
     from hostsim.studies.roa import angle_limits
-
     lim = angle_limits()
-    joint_limits = (lim["th1"], lim["th2"], lim["th3"])
+    return lim["th1"], lim["th2"], lim["th3"]
+
+
+def run_push_limit(gains_paths=DEFAULT_GAINS, horizons_s=DEFAULT_HORIZONS_S, u_max_v=None, validate=False):
+    """-> {"rows": [...], "lqr": [...], "validation": [one per direction] or None, "_meta": {...}}."""
+    joint_limits = stop_limits()
     t0 = time.perf_counter()
     rows, lqr, validation = [], [], None
     for path in gains_paths:
@@ -296,7 +298,7 @@ def run_push_limit(gains_paths=DEFAULT_GAINS, horizons_s=DEFAULT_HORIZONS_S, u_m
             validation = [validate_nonlinear(d, min(max(horizons_s), STATE_LP_MAX_HORIZON_S), sign)
                           for sign in (1.0, -1.0)]
     return {"rows": rows, "lqr": lqr, "validation": validation,
-            "_meta": {"target_n_s": TARGET_N_S, "link": PUSH_LINK, "joint_limits_rad": list(joint_limits),
+            "_meta": {"generator": __name__, "target_n_s": TARGET_N_S, "link": PUSH_LINK, "joint_limits_rad": list(joint_limits),
                       "u_max_v": u_max_v, "gains": list(gains_paths), "wall_s": time.perf_counter() - t0}}
 
 
