@@ -10,10 +10,21 @@ Format version 2::
 
 Tags: HEAD (the JSON header, first and once), INFO (JSON merged into the header: what a run
 learns after its start, such as the calibration and the encoder zeros), ROWS (u64 index of the
-first row, u32 row count, then the rows: little-endian float64, ``len(columns)`` a row), TAIL
-(JSON merged into the header: how the run ended; last). The file is preallocated for the rows
-a run can write (``posix_fallocate``: a full disk is found before the motors move) and cut to
-its end when it is closed.
+first row, u32 row count, then the rows: little-endian float64, ``len(columns)`` a row), RING
+(where the ring of a long run's last rows starts, below), TAIL (JSON merged into the header: how
+the run ended; last). The file is preallocated for the rows a run can keep
+(``posix_fallocate``: a full disk is found before the motors move) and cut to its end when it
+is closed.
+
+Bounded logs (LogWriter's ``keep``: head rows, ring slots, slot rows): the first ``head`` rows go
+in order as above (the head: calibration, start, first seconds). The next rows make a RING
+record (u64 the ring's first row = head, u32 rows a slot, u32 slots, u32 bytes a slot) followed
+by ``slots`` fixed-size slots; chunk c of the rows after the head (rows head + c * slot_rows
+onwards) is one ROWS record written over slot c mod slots, so the slots hold the run's last
+chunks and the file never grows. The TAIL follows the last slot. Each slot's record carries
+its first row index and its CRC: the reader takes every intact slot whose index fits its place,
+orders them, keeps the newest ``slots`` chunks and drops a torn one (a write a crash or a power
+cut cut short) or a stale one; what is missing between the parts is reported as gaps.
 
 Reading (read_log): every record is checked. The intact part of a log that does not end with
 its TAIL (a crash or a power cut, or a write that failed: the file ends inside a record, or in
@@ -34,11 +45,13 @@ from tipbot_fw import fields
 MAGIC = b'TIPBLOG\n'
 FORMAT_VERSION = 2
 READ_VERSIONS = (1, 2)
-HEAD, INFO, ROWS, TAIL = b'HEAD', b'INFO', b'ROWS', b'TAIL'
-TAGS = (HEAD, INFO, ROWS, TAIL)
+HEAD, INFO, ROWS, RING, TAIL = b'HEAD', b'INFO', b'ROWS', b'RING', b'TAIL'
+TAGS = (HEAD, INFO, ROWS, RING, TAIL)
 _U32 = struct.Struct('<I')
 _REC = struct.Struct('<4sII')          # tag, payload length, CRC of both
 _ROWS = struct.Struct('<QI')           # first row index, row count
+_RING = struct.Struct('<QIII')         # the ring's first row, rows a slot, slots, bytes a slot
+_OVERHEAD = _REC.size + _ROWS.size + 4  # a ROWS record's bytes beyond its rows
 _V1_COUNTS = struct.Struct('<IIIQ')    # version 1: format_version, header_len, ncols, nrows
 RESERVE_EXTRA_BYTES = 256 * 1024       # header, INFO and TAIL records, beyond the rows
 MAX_JSON_BYTES = 16 * 1024 * 1024
@@ -62,24 +75,36 @@ def _json_bytes(doc):
 
 class LogWriter(object):
     """A log written record by record. Opening checks the path and reserves room for
-    ``reserve_rows`` rows (LogWriteError if either fails: nothing has run yet). After that
-    nothing raises: a failed write (a full disk, an I/O error) is kept in ``failed``, the later
-    records are skipped, and what was written before still reads."""
+    ``reserve_rows`` rows, or for what ``keep`` keeps (LogWriteError if either fails: nothing
+    has run yet). After that nothing raises: a failed write (a full disk, an I/O error) is kept
+    in ``failed``, the later records are skipped, and what was written before still reads.
 
-    def __init__(self, path, columns, reserve_rows=0, layout=None):
+    keep: None (every row, in order) or (head, slots, slot_rows): the first ``head`` rows in
+    order, then a ring of ``slots`` slots of ``slot_rows`` rows keeping the last ones (module
+    docstring; slots 0: the first ``head`` rows only). Rows given after the head must start at a
+    chunk boundary (head + a multiple of slot_rows): tipbot_fw.logfile.LogBuffer flushes so."""
+
+    def __init__(self, path, columns, reserve_rows=0, layout=None, keep=None):
         self.path = path
         self.layout = layout
         self.ncols = len(columns)
         self.columns = [{'name': n, 'unit': u} for n, u in columns]
-        self.rows_written = 0
+        self.rows_written = 0   # rows given (the next row's index), kept or not
         self.failed = None
         self.closed = False
+        self.head, self.slots, self.slot_rows = keep if keep is not None else (None, 0, 1)
+        self.slot_bytes = _OVERHEAD + 8 * self.ncols * self.slot_rows
+        self.ring_start = None  # byte offset of slot 0, once the ring is entered
+        self.slot_held = [None] * self.slots   # (first row, count) in each slot
+        self.dropped = 0        # rows given and not kept (beyond the head, overwritten in the ring)
+        if keep is not None:
+            reserve_rows = self.head
         try:
             self.fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
         except OSError as e:
             raise LogWriteError(e.errno, 'cannot write the log {}: {}'.format(path, e.strerror or e))
         self.pos = 0
-        reserve = RESERVE_EXTRA_BYTES + int(reserve_rows) * 8 * self.ncols
+        reserve = RESERVE_EXTRA_BYTES + int(reserve_rows) * 8 * self.ncols + self.slots * self.slot_bytes
         try:
             if hasattr(os, 'posix_fallocate'):
                 try:
@@ -95,20 +120,22 @@ class LogWriter(object):
             except OSError:
                 pass
             raise LogWriteError(e.errno, 'no room for the log {} ({:.1f} MB for {} rows): {}'.format(
-                path, reserve / 1e6, reserve_rows, e.strerror or e))
+                path, reserve / 1e6, reserve_rows + self.slots * self.slot_rows, e.strerror or e))
 
-    def _write(self, data):
-        n = os.pwrite(self.fd, data, self.pos)
+    def _write(self, data, at=None):
+        pos = self.pos if at is None else at
+        n = os.pwrite(self.fd, data, pos)
         if n != len(data):
             raise OSError(28, 'short write ({} of {} bytes)'.format(n, len(data)))
-        self.pos += n
+        if at is None:
+            self.pos += n
 
-    def _record(self, tag, payload):
+    def _record(self, tag, payload, at=None):
         if self.failed is not None or self.closed:
             return False
         head = tag + _U32.pack(len(payload))
         try:
-            self._write(head + _U32.pack(_crc(head)) + bytes(payload) + _U32.pack(_crc(payload)))
+            self._write(head + _U32.pack(_crc(head)) + bytes(payload) + _U32.pack(_crc(payload)), at)
         except OSError as e:
             self.failed = 'writing the log failed after {} rows: {}'.format(self.rows_written, e.strerror or e)
             return False
@@ -126,29 +153,58 @@ class LogWriter(object):
         return self._record(INFO, _json_bytes(doc))
 
     def rows(self, block):
-        """Append rows (n x ncols, any float array) as one ROWS record. -> written or not."""
+        """Append rows (n x ncols, any float array). -> written or not."""
         body = np.ascontiguousarray(block, dtype='<f8')
         if body.ndim != 2 or body.shape[1] != self.ncols:
             raise ValueError('log rows must be n x {}, got shape {}'.format(self.ncols, body.shape))
-        ok = self._record(ROWS, _ROWS.pack(self.rows_written, len(body)) + body.tobytes())
-        if ok:
-            self.rows_written += len(body)
-        return ok
+        return self.rows_bytes(body.tobytes(), len(body))
 
     def rows_bytes(self, data, count):
-        """Append ``count`` rows given as their bytes (little-endian float64, ncols a row), as one
-        ROWS record: what the control loop's slack can afford (no conversion)."""
-        if len(data) != 8 * self.ncols * count:
+        """Append ``count`` rows given as their bytes (little-endian float64, ncols a row): one
+        ROWS record in the head, one per chunk in the ring. What the control loop's slack can
+        afford (no conversion). -> written or not."""
+        width = 8 * self.ncols
+        if len(data) != width * count:
             raise ValueError('{} bytes are not {} rows of {} columns'.format(len(data), count, self.ncols))
-        ok = self._record(ROWS, _ROWS.pack(self.rows_written, count) + bytes(data))
-        if ok:
-            self.rows_written += count
+        first, ok = self.rows_written, True
+        n = count if self.head is None else max(0, min(count, self.head - first))
+        if n:
+            ok = self._record(ROWS, _ROWS.pack(first, n) + bytes(data[:n * width]))
+        if n < count and self.slots:
+            if self.ring_start is None:
+                ok = self._record(RING, _RING.pack(self.head, self.slot_rows, self.slots, self.slot_bytes))
+                self.ring_start = self.pos
+            while n < count and ok:
+                r = first + n
+                m = min(count - n, self.slot_rows - (r - self.head) % self.slot_rows)
+                slot = (r - self.head) // self.slot_rows % self.slots
+                ok = self._record(ROWS, _ROWS.pack(r, m) + bytes(data[n * width:(n + m) * width]),
+                                  self.ring_start + slot * self.slot_bytes)
+                held = self.slot_held[slot]
+                if held is not None and held[0] != r:
+                    self.dropped += held[1]
+                self.slot_held[slot] = (r, m)
+                n += m
+        elif n < count:
+            self.dropped += count - n
+        self.rows_written += count
         return ok
 
+    def not_kept(self):
+        """-> [(first, last)] the row indices given and not kept (a long run's middle)."""
+        if self.head is None or self.rows_written <= self.head:
+            return []
+        kept = [h[0] for h in self.slot_held if h is not None]
+        first_kept = min(kept) if kept else self.rows_written
+        return [(self.head, first_kept - 1)] if first_kept > self.head else []
+
     def close(self, trailer):
-        """TAIL, cut the file to its end, fsync, close. Never raises; -> None or the problem."""
+        """TAIL (after the ring's last slot, if any), cut the file to its end, fsync, close.
+        Never raises; -> None or the problem."""
         if self.closed:
             return self.failed
+        if self.ring_start is not None:
+            self.pos = self.ring_start + self.slots * self.slot_bytes
         self._record(TAIL, _json_bytes(trailer))
         self.closed = True
         try:
@@ -218,6 +274,7 @@ def _read_v2(path, data, pos):
     nrows = 0
     incomplete = None
     ended = False
+    ring, chunks, torn = None, [], 0
     while pos < size:
         if ended:
             if not any(data[pos:]):
@@ -255,6 +312,21 @@ def _read_v2(path, data, pos):
         elif tag in (INFO, TAIL):
             merged.update(_parse_json(payload, path, 'record at byte {}'.format(pos)))
             ended = tag == TAIL
+        elif tag == RING:
+            if ring is not None or len(payload) != _RING.size:
+                raise LogFormatError('{}: corrupted: RING record at byte {}'.format(path, pos))
+            ring = _RING.unpack_from(payload, 0)
+            head, slot_rows, slots, slot_bytes = ring
+            if head != nrows or not slot_rows or not slots or slot_bytes != _OVERHEAD + 8 * ncols * slot_rows:
+                raise LogFormatError('{}: corrupted: RING record at byte {} describes a ring of {} slots of {} rows '
+                                     'in {} bytes after row {}, expected after row {} and {} bytes a slot'.format(
+                                         path, pos, slots, slot_rows, slot_bytes, head, nrows,
+                                         _OVERHEAD + 8 * ncols * slot_rows))
+            chunks, torn, cut = _read_ring(data, end, ring, ncols)
+            end += slots * slot_bytes
+            if cut:
+                incomplete = 'the file ends inside the ring of the last rows, at byte {}'.format(size)
+                break
         else:
             if len(payload) < _ROWS.size:
                 raise LogFormatError('{}: corrupted: ROWS record at byte {} too short'.format(path, pos))
@@ -271,10 +343,71 @@ def _read_v2(path, data, pos):
     if incomplete is None and not ended:
         incomplete = 'no trailer: the run did not finish writing its log'
     header.update(merged)
+    if ring is not None:
+        blocks += [c[2] for c in chunks]
+        _describe_parts(header, nrows, chunks, torn)
+        nrows += sum(c[1] for c in chunks)
     if incomplete is not None:
         header['incomplete'] = '{}; {} intact rows (a crash, a power cut or a full disk)'.format(incomplete, nrows)
     rows = np.concatenate(blocks).astype(float) if blocks else np.zeros((0, ncols))
     return header, rows
+
+
+def _read_ring(data, start, ring, ncols):
+    """The ring's slots from byte ``start`` -> ([(first row, count, rows)] oldest first, slots
+    dropped (torn, damaged or misplaced), whether the file ends before the last slot)."""
+    head, slot_rows, slots, slot_bytes = ring
+    found = []
+    torn = 0
+    for s in range(slots):
+        p = start + s * slot_bytes
+        if p >= len(data):
+            break
+        rec = data[p:p + slot_bytes]
+        if not any(rec):
+            continue                     # never written
+        ok = len(rec) >= _REC.size + _ROWS.size + 4
+        if ok:
+            tag, n, hcrc = _REC.unpack_from(rec, 0)
+            ok = tag == ROWS and _crc(rec[:8]) == hcrc and _ROWS.size <= n <= len(rec) - _REC.size - 4
+        if ok:
+            payload = memoryview(rec)[_REC.size:_REC.size + n]
+            first, count = _ROWS.unpack_from(payload, 0)
+            ok = (_crc(payload) == _U32.unpack_from(rec, _REC.size + n)[0] and 0 < count <= slot_rows
+                  and n == _ROWS.size + 8 * ncols * count and first >= head
+                  and (first - head) % slot_rows == 0 and (first - head) // slot_rows % slots == s)
+        if ok:
+            found.append((first, count, np.frombuffer(payload, dtype='<f8', offset=_ROWS.size).reshape(count, ncols)))
+        else:
+            torn += 1
+    found.sort(key=lambda c: c[0])
+    if found:   # a slot a failed write left behind holds a chunk older than the ring's span
+        newest = found[-1][0]
+        found = [c for c in found if c[0] > newest - slots * slot_rows]
+    return found, torn, start + slots * slot_bytes > len(data)
+
+
+def _describe_parts(header, head_rows, chunks, torn):
+    """header['segments']: [first tick, rows] of each run of consecutive rows, in file order;
+    header['not_kept']: [first, last] ticks between them (and after them, up to the run's last
+    tick) that the log does not hold."""
+    first_tick = header.get('first_tick', 0)
+    first_tick = first_tick if isinstance(first_tick, int) and not isinstance(first_tick, bool) else 0
+    segments = [[first_tick, head_rows]] if head_rows else []
+    for first, count, _ in chunks:
+        if segments and segments[-1][0] + segments[-1][1] == first_tick + first:
+            segments[-1][1] += count
+        else:
+            segments.append([first_tick + first, count])
+    gaps = [[a[0] + a[1], b[0] - 1] for a, b in zip(segments, segments[1:])]
+    ticks = header.get('ticks')
+    end = segments[-1][0] + segments[-1][1] if segments else first_tick
+    if isinstance(ticks, int) and not isinstance(ticks, bool) and ticks > end:
+        gaps.append([end, ticks - 1])
+    header['segments'] = segments
+    header['not_kept'] = gaps
+    if torn:
+        header['ring_dropped_chunks'] = torn
 
 
 def _ncols(header, path):

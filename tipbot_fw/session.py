@@ -49,7 +49,8 @@ def base_header(gains, config, duration_s):
 def open_log(log_path, gains, config, duration_s):
     """The run's LogWriter (the rows of the core the configuration selects), with room reserved
     for its rows; LogWriteError (the path, a full disk) before anything runs."""
-    return logfile.open_run_log(log_path, _log_rows(config, gains.ts_s, duration_s), row_layout(gains, config))
+    keep = logfile.keep_plan(config['log_max_rows'], config['log_head_rows'], _needed_rows(gains.ts_s, duration_s))
+    return logfile.open_run_log(log_path, keep, row_layout(gains, config))
 
 
 class BeatingClock(object):
@@ -94,8 +95,8 @@ def run_session(devices, gains, config, clock, log_path=None, duration_s=None,
             say('no log: {}'.format(e.strerror))
     if log is not None:
         log.header(header)
-    rows = logfile.LogBuffer.for_file(log, layout, config['log_max_rows']) if log is not None else \
-        logfile.LogBuffer(_log_rows(config, gains.ts_s, duration_s), layout)
+    rows = logfile.LogBuffer.for_file(log, layout) if log is not None else \
+        logfile.LogBuffer(min(config['log_max_rows'], _needed_rows(gains.ts_s, duration_s) or 1 << 62), layout)
     run = {}    # what body() got to build: the core and the loop
 
     def learnt(doc):
@@ -164,8 +165,10 @@ def run_session(devices, gains, config, clock, log_path=None, duration_s=None,
                 if code == EXIT_OK:
                     code = header['exit_code'] = EXIT_ERROR
             note = '; log {}'.format(log.path)
-            if rows.not_recorded():
-                note += ' (the first {} ticks: limits log_max_rows)'.format(config['log_max_rows'])
+            gaps = log.not_kept()
+            if gaps:
+                note += ' (ticks {}: not kept, the file holds the start and the last ticks: log_max_rows, ' \
+                    'log_head_rows)'.format(', '.join('{}..{}'.format(a, b) for a, b in gaps))
         say('stopped: {} (exit {}, {} ticks){}'.format(msg, code, rows.count, note))
         try:
             cues.stopped(reason, code)    # after the log: its light and tone take up to a second
@@ -190,9 +193,7 @@ def log_refused_start(log, gains, config, duration_s, error, say=say):
         say('stopped: {} (exit {}, no ticks); log {}'.format(header['stop_message'], header['exit_code'], log.path))
 
 
-def _log_rows(config, ts_s, duration_s):
-    cap = config['log_max_rows']
-    if duration_s is not None:
-        cap = min(cap, int(round(duration_s / ts_s)) + 1)
-    return max(1, cap)
+def _needed_rows(ts_s, duration_s):
+    """Rows a run of duration_s writes at most (None: until stopped)."""
+    return None if duration_s is None else max(1, int(round(duration_s / ts_s)) + 1)
 
