@@ -20,9 +20,11 @@ SCENARIO = {"name": "replay-test", "duration_s": 1.5, "sensors": {"gyro_noise_dp
             "pushes": [{"t_s": 0.2, "th1_dot_rad_s": 0.05}], "seed": 7}
 
 
-def simulate(path, sysfs=True, config_overrides=None):
+def simulate(path, sysfs=True, config_overrides=None, result=None):
     sc = parse_scenario(dict(SCENARIO, gains=PHYSICAL_GAINS))
-    fil.run_firmware(sc, log_path=str(path), sysfs=sysfs, config_overrides=config_overrides)
+    run = fil.run_firmware(sc, log_path=str(path), sysfs=sysfs, config_overrides=config_overrides)
+    if result is not None:
+        result.append(run)
     return str(path)
 
 
@@ -98,8 +100,13 @@ def test_a_log_of_the_previous_firmware_is_refused_with_what_to_do(tmp_path, cap
 
 
 def test_a_log_beyond_log_max_rows_keeps_its_start_and_end_replays_exactly_and_says_what_is_missing(tmp_path, capsys):
-    path = simulate(tmp_path / "long.log", sysfs=False, config_overrides={"log_max_rows": 200, "log_head_rows": 50})
+    runs = []
+    path = simulate(tmp_path / "long.log", sysfs=False, config_overrides={"log_max_rows": 200, "log_head_rows": 50},
+                    result=runs)
     header, rows = logfile.read_log(path)
+    # the simulator's view of the firmware's estimates: tick k at sample k, nothing where not kept
+    xhat = runs[0].xhat
+    assert np.isnan(xhat[50:150]).all() and np.isfinite(xhat[:50]).all() and np.isfinite(xhat[150:300]).all()
     # 300 ticks: the first 50, then a ring of 3 chunks of 50 holding the last ones, 150..299
     assert header["ticks"] == 300 and len(rows) == 200 and header["rows_not_recorded"] == 100
     assert header["segments"] == [[0, 50], [150, 150]] and header["not_kept"] == [[50, 149]]

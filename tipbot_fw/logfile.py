@@ -374,6 +374,12 @@ def segments(header, nrows):
     return header.get('segments') or [[header.get('first_tick', 0), nrows]]
 
 
+def tick_indices(header, nrows):
+    """-> the tick of each of a log's nrows rows (int array), from its segments."""
+    parts = [np.arange(first, first + n) for first, n in segments(header, nrows)]
+    return np.concatenate(parts).astype(int) if parts else np.zeros(0, dtype=int)
+
+
 def read_log(path):
     """-> (header, rows in the file layout of the log's core). A run log whose file stores memory
     rows (format 2) is converted here with the layout its header describes (the core, the

@@ -437,6 +437,11 @@ def plot(r, out_dir):
     if r.replayed is not None:
         series.append(("replayed (logged gains)", fw_replay.signals(r.header, r.replayed, gains),
                        dict(color="tab:orange", lw=1.0, ls="--")))
+    # the ticks a long run's log did not keep: shaded between the last row before and the first after
+    # (and the lines broken there: a NaN between the parts)
+    starts = [i for i in np.cumsum([n for _, n in logfile.segments(r.header, len(r.rows))])[:-1] if 0 < i < len(t)]
+    gaps = [(t[i - 1], t[i]) for i in starts]
+    t = np.insert(t, starts, np.nan)
     paths = []
     inputs = [("u", j, "u_" + n, "V") for n, j in zip(logfile.ACTUATED_NAMES, ACTUATED_INPUTS)]
     states = [("x_hat", i, "x^_" + n, u) for i, (n, u) in enumerate(zip(logfile.STATE_NAMES, logfile.STATE_UNITS))]
@@ -445,7 +450,9 @@ def plot(r, out_dir):
         fig, axes = plt.subplots(nrows, ncols, figsize=(11, 2.2 * nrows + 0.8), sharex=True, squeeze=False)
         for ax, (key, j, name, unit) in zip(axes.flat, panels):
             for label, sig, style in series:
-                ax.plot(t, sig[key][:, j], label=label, **style)
+                ax.plot(t, np.insert(sig[key][:, j], starts, np.nan), label=label, **style)
+            for k, (a, b) in enumerate(gaps):
+                ax.axvspan(a, b, color="0.85", zorder=0, label="not kept" if k == 0 else None)
             ax.set_ylabel("%s [%s]" % (name, unit))
             ax.grid(True, alpha=0.3)
         for ax in axes[-1]:
