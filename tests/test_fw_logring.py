@@ -6,6 +6,7 @@ import pytest
 
 from tipbot_fw import logcontainer
 from tipbot_fw.logcontainer import LogFormatError, LogWriter, read_log
+from tipbot_fw import logfile
 from tipbot_fw.logfile import segments
 
 COLUMNS = [('tick', ''), ('a', 'm'), ('b', 'V')]
@@ -160,3 +161,24 @@ def test_a_damaged_ring_record_is_refused_in_one_line(tmp_path):
     bad.write_bytes(bytes(data))
     with pytest.raises(LogFormatError, match='RING record at byte'):
         read_log(str(bad))
+
+
+@pytest.mark.parametrize('max_rows, head_rows, needed, plan', [
+    (24000, 6000, None, (6000, 360, 50)),     # the defaults: 30 s, then the last 90 s at 5 ms
+    (24000, 6000, 601, (601, 0, 50)),         # a run of --duration 3 s: every row, no ring
+    (24000, 6000, 24001, (6000, 360, 50)),
+    (300, 6000, None, (150, 3, 50)),          # the head takes at most half
+    (1000, 120, None, (100, 18, 50)),         # whole chunks
+    (1000, 0, None, (0, 20, 50)),             # the last rows only
+    (149, 50, None, (149, 0, 50)),            # no room for 2 chunks beside a head: the first rows
+])
+def test_what_a_run_keeps_of_its_rows(max_rows, head_rows, needed, plan):
+    assert logfile.keep_plan(max_rows, head_rows, needed) == plan
+
+
+def test_a_ring_without_a_head_keeps_the_last_rows(tmp_path):
+    path = str(tmp_path / 'tail.log')
+    write_run(path, 333, keep=(0, 3, CHUNK))
+    header, rows = read_log(path)
+    np.testing.assert_array_equal(rows, rows_of(200, 133))    # 200..249, 250..299, 300..332 (partial)
+    assert header['segments'] == [[200, 133]] and header['not_kept'] == [[0, 199]]

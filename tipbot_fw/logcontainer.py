@@ -389,8 +389,8 @@ def _read_ring(data, start, ring, ncols):
 
 def _describe_parts(header, head_rows, chunks, torn):
     """header['segments']: [first tick, rows] of each run of consecutive rows, in file order;
-    header['not_kept']: [first, last] ticks between them (and after them, up to the run's last
-    tick) that the log does not hold."""
+    header['not_kept']: [first, last] ticks before, between and (up to the run's last tick)
+    after them that the log does not hold."""
     first_tick = header.get('first_tick', 0)
     first_tick = first_tick if isinstance(first_tick, int) and not isinstance(first_tick, bool) else 0
     segments = [[first_tick, head_rows]] if head_rows else []
@@ -400,6 +400,8 @@ def _describe_parts(header, head_rows, chunks, torn):
         else:
             segments.append([first_tick + first, count])
     gaps = [[a[0] + a[1], b[0] - 1] for a, b in zip(segments, segments[1:])]
+    if segments and segments[0][0] > first_tick:       # a ring without a head
+        gaps.insert(0, [first_tick, segments[0][0] - 1])
     ticks = header.get('ticks')
     end = segments[-1][0] + segments[-1][1] if segments else first_tick
     if isinstance(ticks, int) and not isinstance(ticks, bool) and ticks > end:

@@ -4,7 +4,9 @@ Whatever ends the run (duration reached, fall, a signal, device failure, overrun
 by the supervisor, a bug) the motors are stopped first, then the log is finished, then the
 reason is reported. The log is open before the devices are touched, and its rows reach the
 file while the robot runs (tipbot_fw.logfile): its header at the start, the calibration and the
-encoder zeros as they are learnt, the rows in chunks, the end of the run last.
+encoder zeros as they are learnt, the rows in chunks, the end of the run last. The file has a
+fixed size (config log_max_rows): a longer run keeps its first log_head_rows rows and its last
+ones (logfile.keep_plan), and the run's last line names the ticks between them, not kept.
 """
 import sys
 import time
@@ -86,7 +88,7 @@ def run_session(devices, gains, config, clock, log_path=None, duration_s=None,
     header = base_header(gains, config, duration_s)
     header['counts_per_rot'] = list(devices.counts_per_rot)
     header['supervised'] = heartbeat.supervised
-    header['first_tick'] = 0     # a file holds a run's rows from its first tick (logfile.LogBuffer)
+    header['first_tick'] = 0     # a file holds a run's rows from its first tick (and a long run's last ones)
     layout = row_layout(gains, config)
     if log is None and log_path:
         try:
