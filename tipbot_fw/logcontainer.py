@@ -10,19 +10,19 @@ Format version 2::
 
 Tags: HEAD (the JSON header, first and once), INFO (JSON merged into the header: what a run
 learns after its start, such as the calibration and the encoder zeros), ROWS (u64 index of the
-first row, u32 row count, then the rows: little-endian float64, ``len(columns)`` a row), RING
-(where the ring of a long run's last rows starts, below), TAIL (JSON merged into the header: how
-the run ended; last). The file is preallocated for the rows a run can keep
-(``posix_fallocate``: a full disk is found before the motors move) and cut to its end when it
-is closed.
+first row, u32 row count, then the rows: little-endian float64, ``len(columns)`` a row), TAIL
+(JSON merged into the header: how the run ended; last). The file is preallocated for the rows
+a run can keep (``posix_fallocate``: a full disk is found before the motors move) and cut to its
+end when it is closed.
 
 Bounded logs (LogWriter's ``keep``: head rows, ring slots, slot rows): the first ``head`` rows go
-in order as above (the head: calibration, start, first seconds). The next rows make a RING
-record (u64 the ring's first row = head, u32 rows a slot, u32 slots, u32 bytes a slot) followed
-by ``slots`` fixed-size slots; chunk c of the rows after the head (rows head + c * slot_rows
-onwards) is one ROWS record written over slot c mod slots, so the slots hold the run's last
-chunks and the file never grows. The TAIL follows the last slot. Each slot's record carries
-its first row index and its CRC: the reader takes every intact slot whose index fits its place,
+in order as above (the head: calibration, start, first seconds). The header's ``ring`` says
+where the rest goes: ``slots`` fixed-size slots from byte ``start_byte`` (a page boundary after
+the room the records before it can take, so that no damage to those reaches the ring, and back);
+chunk c of the rows after the head (rows head + c * slot_rows onwards) is one ROWS record
+written over slot c mod slots, so the slots hold the run's last chunks and the file never
+grows. The TAIL follows the last slot once the ring is used. Each slot's record carries its
+first row index and its CRC: the reader takes every intact slot whose index fits its place,
 orders them, keeps the newest ``slots`` chunks and drops a torn one (a write a crash or a power
 cut cut short) or a stale one; what is missing between the parts is reported as gaps.
 
@@ -45,12 +45,11 @@ from tipbot_fw import fields
 MAGIC = b'TIPBLOG\n'
 FORMAT_VERSION = 2
 READ_VERSIONS = (1, 2)
-HEAD, INFO, ROWS, RING, TAIL = b'HEAD', b'INFO', b'ROWS', b'RING', b'TAIL'
-TAGS = (HEAD, INFO, ROWS, RING, TAIL)
+HEAD, INFO, ROWS, TAIL = b'HEAD', b'INFO', b'ROWS', b'TAIL'
+TAGS = (HEAD, INFO, ROWS, TAIL)
 _U32 = struct.Struct('<I')
 _REC = struct.Struct('<4sII')          # tag, payload length, CRC of both
 _ROWS = struct.Struct('<QI')           # first row index, row count
-_RING = struct.Struct('<QIII')         # the ring's first row, rows a slot, slots, bytes a slot
 _OVERHEAD = _REC.size + _ROWS.size + 4  # a ROWS record's bytes beyond its rows
 _V1_COUNTS = struct.Struct('<IIIQ')    # version 1: format_version, header_len, ncols, nrows
 RESERVE_EXTRA_BYTES = 256 * 1024       # header, INFO and TAIL records, beyond the rows
@@ -94,17 +93,23 @@ class LogWriter(object):
         self.closed = False
         self.head, self.slots, self.slot_rows = keep if keep is not None else (None, 0, 1)
         self.slot_bytes = _OVERHEAD + 8 * self.ncols * self.slot_rows
-        self.ring_start = None  # byte offset of slot 0, once the ring is entered
+        self.ring_start = None  # byte offset of slot 0
         self.slot_held = [None] * self.slots   # (first row, count) in each slot
         self.dropped = 0        # rows given and not kept (beyond the head, overwritten in the ring)
+        self.ring_entered = False
         if keep is not None:
             reserve_rows = self.head
+        if self.slots:      # slot 0 at a fixed byte, on a page, after the room for the records before
+            first = RESERVE_EXTRA_BYTES + self.head * 8 * self.ncols + (self.head // self.slot_rows + 2) * _OVERHEAD
+            self.ring_start = -(-first // 4096) * 4096
         try:
             self.fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
         except OSError as e:
             raise LogWriteError(e.errno, 'cannot write the log {}: {}'.format(path, e.strerror or e))
         self.pos = 0
-        reserve = RESERVE_EXTRA_BYTES + int(reserve_rows) * 8 * self.ncols + self.slots * self.slot_bytes
+        reserve = RESERVE_EXTRA_BYTES + int(reserve_rows) * 8 * self.ncols
+        if self.slots:
+            reserve = self.ring_start + self.slots * self.slot_bytes + RESERVE_EXTRA_BYTES // 4   # the TAIL after
         try:
             if hasattr(os, 'posix_fallocate'):
                 try:
@@ -133,6 +138,9 @@ class LogWriter(object):
     def _record(self, tag, payload, at=None):
         if self.failed is not None or self.closed:
             return False
+        if at is None and self.slots and self.pos + len(payload) + 16 > self.ring_start and tag != TAIL:
+            self.failed = 'the log\'s records before its ring outgrew their room ({} bytes)'.format(self.ring_start)
+            return False
         head = tag + _U32.pack(len(payload))
         try:
             self._write(head + _U32.pack(_crc(head)) + bytes(payload) + _U32.pack(_crc(payload)), at)
@@ -147,6 +155,10 @@ class LogWriter(object):
         doc['format_version'] = FORMAT_VERSION
         if self.layout is not None:
             doc['layout'] = self.layout
+        doc.pop('ring', None)       # (a rewritten log's rows are in order: it has no ring)
+        if self.slots:
+            doc['ring'] = {'head_rows': self.head, 'slot_rows': self.slot_rows, 'slots': self.slots,
+                           'slot_bytes': self.slot_bytes, 'start_byte': self.ring_start}
         return self._record(HEAD, _json_bytes(doc))
 
     def info(self, doc):
@@ -171,9 +183,7 @@ class LogWriter(object):
         if n:
             ok = self._record(ROWS, _ROWS.pack(first, n) + bytes(data[:n * width]))
         if n < count and self.slots:
-            if self.ring_start is None:
-                ok = self._record(RING, _RING.pack(self.head, self.slot_rows, self.slots, self.slot_bytes))
-                self.ring_start = self.pos
+            self.ring_entered = True
             while n < count and ok:
                 r = first + n
                 m = min(count - n, self.slot_rows - (r - self.head) % self.slot_rows)
@@ -203,7 +213,7 @@ class LogWriter(object):
         Never raises; -> None or the problem."""
         if self.closed:
             return self.failed
-        if self.ring_start is not None:
+        if self.ring_entered:
             self.pos = self.ring_start + self.slots * self.slot_bytes
         self._record(TAIL, _json_bytes(trailer))
         self.closed = True
@@ -274,34 +284,21 @@ def _read_v2(path, data, pos):
     nrows = 0
     incomplete = None
     ended = False
-    ring, chunks, torn = None, [], 0
-    while pos < size:
+    ring, limit = None, size        # a bounded log's records before its ring end at the ring
+    while pos < min(size, limit):
         if ended:
-            if not any(data[pos:]):
+            if not any(data[pos:limit]):
                 break
-            raise LogFormatError('{}: {} unexpected bytes after the end of the log'.format(path, size - pos))
-        if size - pos < _REC.size:
-            incomplete = 'the file ends inside a record header at byte {}'.format(pos)
-            break
-        tag, n, hcrc = _REC.unpack_from(data, pos)
-        if _crc(data[pos:pos + 8]) != hcrc or tag not in TAGS:
-            if not any(data[pos:]):
+            raise LogFormatError('{}: {} unexpected bytes after the end of the log'.format(path, min(size, limit) - pos))
+        got = _record_at(path, data, pos, limit)
+        if got is None:
+            if ring is None:
                 incomplete = 'the file ends in space reserved and never written, from byte {}'.format(pos)
-                break
-            raise LogFormatError('{}: corrupted: bad record header at byte {}'.format(path, pos))
-        end = pos + _REC.size + n + 4
-        if end > size:
-            incomplete = 'the file ends inside a {} record at byte {} ({} of its {} bytes)'.format(
-                tag.decode('ascii'), pos, size - pos, end - pos)
+            break                   # (before a ring: the room left for the first rows, unused)
+        if isinstance(got, str):
+            incomplete = got
             break
-        payload = memoryview(data)[pos + _REC.size:end - 4]
-        (pcrc,) = _U32.unpack_from(data, end - 4)
-        if _crc(payload) != pcrc:
-            if end == size or not any(data[end:]):
-                incomplete = 'its last record ({} at byte {}) is damaged'.format(tag.decode('ascii'), pos)
-                break
-            raise LogFormatError('{}: corrupted: CRC32 of the {} record at byte {} is {:08x}, expected {:08x}'.format(
-                path, tag.decode('ascii'), pos, _crc(payload), pcrc))
+        tag, payload, end = got
         if header is None and tag != HEAD:
             raise LogFormatError('{}: corrupted: the first record is {}, not the header'.format(path, tag.decode('ascii')))
         if tag == HEAD:
@@ -309,24 +306,11 @@ def _read_v2(path, data, pos):
                 raise LogFormatError('{}: corrupted: a second header at byte {}'.format(path, pos))
             header = _parse_json(payload, path, 'header')
             ncols = _ncols(header, path)
+            ring = _ring_of(header, ncols, end, path)
+            limit = size if ring is None else ring[4]
         elif tag in (INFO, TAIL):
             merged.update(_parse_json(payload, path, 'record at byte {}'.format(pos)))
             ended = tag == TAIL
-        elif tag == RING:
-            if ring is not None or len(payload) != _RING.size:
-                raise LogFormatError('{}: corrupted: RING record at byte {}'.format(path, pos))
-            ring = _RING.unpack_from(payload, 0)
-            head, slot_rows, slots, slot_bytes = ring
-            if head != nrows or not slot_rows or not slots or slot_bytes != _OVERHEAD + 8 * ncols * slot_rows:
-                raise LogFormatError('{}: corrupted: RING record at byte {} describes a ring of {} slots of {} rows '
-                                     'in {} bytes after row {}, expected after row {} and {} bytes a slot'.format(
-                                         path, pos, slots, slot_rows, slot_bytes, head, nrows,
-                                         _OVERHEAD + 8 * ncols * slot_rows))
-            chunks, torn, cut = _read_ring(data, end, ring, ncols)
-            end += slots * slot_bytes
-            if cut:
-                incomplete = 'the file ends inside the ring of the last rows, at byte {}'.format(size)
-                break
         else:
             if len(payload) < _ROWS.size:
                 raise LogFormatError('{}: corrupted: ROWS record at byte {} too short'.format(path, pos))
@@ -340,6 +324,22 @@ def _read_v2(path, data, pos):
         pos = end
     if header is None:
         raise LogFormatError('{}: truncated: {}'.format(path, incomplete or 'no header record'))
+    chunks, torn = [], 0
+    if ring is not None and not ended:      # (read even when the first rows end damaged)
+        chunks, torn, ring_end = _read_ring(data, ring, ncols)
+        if ring_end > size:
+            incomplete = incomplete or 'the file ends inside the ring of the last rows, at byte {}'.format(size)
+        else:
+            got = _record_at(path, data, ring_end, size)
+            if isinstance(got, str):
+                incomplete = incomplete or got
+            elif got is not None:
+                tag, payload, end = got
+                if tag != TAIL or any(data[end:]):
+                    raise LogFormatError('{}: corrupted: a {} record after the ring, at byte {}, where the end record '
+                                         'belongs'.format(path, tag.decode('ascii'), ring_end))
+                merged.update(_parse_json(payload, path, 'record at byte {}'.format(ring_end)))
+                ended = True
     if incomplete is None and not ended:
         incomplete = 'no trailer: the run did not finish writing its log'
     header.update(merged)
@@ -353,10 +353,56 @@ def _read_v2(path, data, pos):
     return header, rows
 
 
-def _read_ring(data, start, ring, ncols):
-    """The ring's slots from byte ``start`` -> ([(first row, count, rows)] oldest first, slots
-    dropped (torn, damaged or misplaced), whether the file ends before the last slot)."""
-    head, slot_rows, slots, slot_bytes = ring
+def _record_at(path, data, pos, limit):
+    """The record at byte pos, ending by byte limit -> (tag, payload, end); None: zeros from pos
+    to limit (space reserved and never written); a string: why the log ends there (cut short,
+    or its last record damaged). LogFormatError for a damaged record with data after it."""
+    size = len(data)
+    if size - pos < _REC.size:
+        return 'the file ends inside a record header at byte {}'.format(pos)
+    tag, n, hcrc = _REC.unpack_from(data, pos)
+    if _crc(data[pos:pos + 8]) != hcrc or tag not in TAGS:
+        if not any(data[pos:limit]):
+            return None
+        raise LogFormatError('{}: corrupted: bad record header at byte {}'.format(path, pos))
+    end = pos + _REC.size + n + 4
+    if end > min(size, limit):
+        if end <= size:
+            raise LogFormatError('{}: corrupted: the {} record at byte {} runs into the ring of the last rows'.format(
+                path, tag.decode('ascii'), pos))
+        return 'the file ends inside a {} record at byte {} ({} of its {} bytes)'.format(
+            tag.decode('ascii'), pos, size - pos, end - pos)
+    payload = memoryview(data)[pos + _REC.size:end - 4]
+    (pcrc,) = _U32.unpack_from(data, end - 4)
+    if _crc(payload) != pcrc:
+        if end == size or not any(data[end:limit]):
+            return 'its last record ({} at byte {}) is damaged'.format(tag.decode('ascii'), pos)
+        raise LogFormatError('{}: corrupted: CRC32 of the {} record at byte {} is {:08x}, expected {:08x}'.format(
+            path, tag.decode('ascii'), pos, _crc(payload), pcrc))
+    return tag, payload, end
+
+
+def _ring_of(header, ncols, after, path):
+    """A bounded log's ring (header['ring']) -> (head rows, rows a slot, slots, bytes a slot,
+    byte of slot 0), or None; LogFormatError if it does not describe a ring of these rows."""
+    doc = header.get('ring')
+    if doc is None:
+        return None
+    keys = ('head_rows', 'slot_rows', 'slots', 'slot_bytes', 'start_byte')
+    if not isinstance(doc, dict):
+        raise LogFormatError('{}: header field ring must be an object, got {!r}'.format(path, doc))
+    ring = tuple(doc.get(k) for k in keys)
+    if not (all(isinstance(v, int) and not isinstance(v, bool) and 0 <= v < 2 ** 40 for v in ring)
+            and ring[1] > 0 and ring[2] > 0 and ring[3] == _OVERHEAD + 8 * ncols * ring[1] and ring[4] >= after):
+        raise LogFormatError('{}: header field ring must give {} of a ring of slots of {} columns after the header, '
+                             'got {!r}'.format(path, ', '.join(keys), ncols, doc))
+    return ring
+
+
+def _read_ring(data, ring, ncols):
+    """The ring's slots -> ([(first row, count, rows)] oldest first, slots dropped (torn,
+    damaged or misplaced), the byte after the last slot)."""
+    head, slot_rows, slots, slot_bytes, start = ring
     found = []
     torn = 0
     for s in range(slots):
@@ -384,7 +430,7 @@ def _read_ring(data, start, ring, ncols):
     if found:   # a slot a failed write left behind holds a chunk older than the ring's span
         newest = found[-1][0]
         found = [c for c in found if c[0] > newest - slots * slot_rows]
-    return found, torn, start + slots * slot_bytes > len(data)
+    return found, torn, start + slots * slot_bytes
 
 
 def _describe_parts(header, head_rows, chunks, torn):
