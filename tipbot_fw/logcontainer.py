@@ -174,30 +174,35 @@ class LogWriter(object):
     def rows_bytes(self, data, count):
         """Append ``count`` rows given as their bytes (little-endian float64, ncols a row): one
         ROWS record in the head, one per chunk in the ring. What the control loop's slack can
-        afford (no conversion). -> written or not."""
+        afford (no conversion, one copy of the bytes into the record). -> written or not."""
         width = 8 * self.ncols
         if len(data) != width * count:
             raise ValueError('{} bytes are not {} rows of {} columns'.format(len(data), count, self.ncols))
-        first, ok = self.rows_written, True
-        n = count if self.head is None else max(0, min(count, self.head - first))
-        if n:
-            ok = self._record(ROWS, _ROWS.pack(first, n) + bytes(data[:n * width]))
-        if n < count and self.slots:
-            self.ring_entered = True
-            while n < count and ok:
-                r = first + n
-                m = min(count - n, self.slot_rows - (r - self.head) % self.slot_rows)
-                slot = (r - self.head) // self.slot_rows % self.slots
-                ok = self._record(ROWS, _ROWS.pack(r, m) + bytes(data[n * width:(n + m) * width]),
-                                  self.ring_start + slot * self.slot_bytes)
-                held = self.slot_held[slot]
-                if held is not None and held[0] != r:
-                    self.dropped += held[1]
-                self.slot_held[slot] = (r, m)
-                n += m
-        elif n < count:
+        first = self.rows_written
+        if self.head is None or first + count <= self.head:
+            ok = self._record(ROWS, _ROWS.pack(first, count) + data)
+            self.rows_written = first + count
+            return ok
+        data = memoryview(data)
+        n = max(0, self.head - first)
+        ok = self._record(ROWS, _ROWS.pack(first, n) + data[:n * width]) if n else True
+        self.rows_written = first + count
+        if not self.slots:
             self.dropped += count - n
-        self.rows_written += count
+            return ok
+        self.ring_entered = True
+        while n < count and ok:
+            r = first + n
+            c = (r - self.head) // self.slot_rows
+            m = min(count - n, self.head + (c + 1) * self.slot_rows - r)
+            slot = c % self.slots
+            ok = self._record(ROWS, _ROWS.pack(r, m) + data[n * width:(n + m) * width],
+                              self.ring_start + slot * self.slot_bytes)
+            held = self.slot_held[slot]
+            if held is not None and held[0] != r:
+                self.dropped += held[1]
+            self.slot_held[slot] = (r, m)
+            n += m
         return ok
 
     def not_kept(self):
