@@ -124,27 +124,30 @@ def test_any_bytes_as_any_json_file(tmp_path, raw):
 LOG_BYTES = {}
 
 
-def a_log(tmp_path_factory, estimator):
-    """The bytes of a short run's log with this core (made once)."""
-    if estimator not in LOG_BYTES:
+def a_log(tmp_path_factory, estimator, bounded=False):
+    """The bytes of a short run's log with this core (made once); bounded: a run longer than
+    its log_max_rows (the first 50 rows and a ring of 2 chunks of the last ones)."""
+    key = (estimator, bounded)
+    if key not in LOG_BYTES:
         path = str(tmp_path_factory.mktemp('fuzzlog') / 'run.log')
         sim = S.Lockstep(x0=[0, 0, 0.03, 0, 0, 0, 0, 0, 0, 0])
         from tipbot_fw.session import run_session
-        run_session(sim.dev, S.load(), S.fw_config(estimator=estimator), sim.clock, log_path=path, duration_s=0.6,
-                    say=lambda m: None)
+        keep = dict(log_max_rows=150, log_head_rows=50) if bounded else {}
+        run_session(sim.dev, S.load(), S.fw_config(estimator=estimator, **keep), sim.clock, log_path=path,
+                    duration_s=1.0 if bounded else 0.6, say=lambda m: None)
         with open(path, 'rb') as f:
-            LOG_BYTES[estimator] = f.read()
-    return LOG_BYTES[estimator]
+            LOG_BYTES[key] = f.read()
+    return LOG_BYTES[key]
 
 
 ESTIMATORS = pytest.mark.parametrize('estimator', ['kalman', 'detector'])
 
 
-@ESTIMATORS
+@pytest.mark.parametrize('estimator, bounded', [('kalman', False), ('detector', False), ('kalman', True)])
 @FUZZ
 @given(data=st.data())
-def test_the_log_reader_on_damaged_logs(tmp_path, tmp_path_factory, estimator, data):
-    good = a_log(tmp_path_factory, estimator)
+def test_the_log_reader_on_damaged_logs(tmp_path, tmp_path_factory, estimator, bounded, data):
+    good = a_log(tmp_path_factory, estimator, bounded)
     how = data.draw(st.sampled_from(['cut', 'flip', 'splice', 'zeros']))
     raw = bytearray(good)
     if how == 'cut':

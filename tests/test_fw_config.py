@@ -52,6 +52,8 @@ def test_null_bias_time_constant_disables_tracking(tmp_path):
     ({'drivers': {'gyro': ''}}, 'field drivers.gyro must be a non-empty string'),
     ({'stop_action': 'hold'}, "field stop_action must be one of 'coast', 'brake', got 'hold'"),
     ({'realtime_priority': 100}, 'field realtime_priority must be an integer in'),
+    ({'log_head_rows': -1}, r'field log_head_rows must be an integer in \[0, 720000\], got -1$'),
+    ({'log_head_rows': 10.5}, r'field log_head_rows must be an integer in \[0, 720000\], got 10.5$'),
     # the warning within what a battery reads, and before the refusal to start
     ({'limits': {'warn_battery_v': 20}}, r'field limits.warn_battery_v must be a number in \[5.0, 9.0\], got 20'),
     ({'limits': {'warn_battery_v': 6.0}}, 'field limits.warn_battery_v is 6.0 V, below limits.min_battery_v = 6.5 V'),

@@ -197,17 +197,18 @@ def test_log_written_block_by_block_from_the_ring(tmp_path):
     assert header['first_tick'] == 10 and len(rows) == 7
 
 
-def simulated_run(tmp_path, duration_s=2.0, log_max_rows=24000, estimator='kalman'):
+def simulated_run(tmp_path, duration_s=2.0, estimator='kalman', name='run.log', **config):
     sim = S.Lockstep(x0=[0, 0, 0.04, 0.02, 0, 0, 0, 0, 0, 0], gyro_bias_dps=2,
                      disturbance=[0.5, 0.5, 0, 0, 0], enc_zero=(1000, -2000, 30, -40))
     gains = S.load()
-    path = str(tmp_path / 'run.log')
-    config = S.fw_config(start_pose_rad={'th1': 0.04, 'th2': 0.02}, log_max_rows=log_max_rows,
-                         estimator=estimator)
+    path = str(tmp_path / name)
+    config = S.fw_config(start_pose_rad={'th1': 0.04, 'th2': 0.02}, estimator=estimator, **config)
+    said = []
     code, _ = run_session(sim.dev, gains, config, sim.clock, log_path=path, duration_s=duration_s,
-                          say=lambda m: None)
+                          say=said.append)
     assert code == 0
     header, rows = read_log(path)
+    header['said'] = said
     return gains, (header, rows), [c['name'] for c in header['columns']].index
 
 
@@ -225,10 +226,25 @@ def test_replay_reproduces_the_run(tmp_path, estimator):
 
 
 @pytest.mark.parametrize('estimator', ['kalman', 'detector'])
-def test_a_run_beyond_log_max_rows_keeps_its_first_rows(tmp_path, estimator):
-    gains, (header, rows), _ = simulated_run(tmp_path, log_max_rows=150, estimator=estimator)
-    assert header['first_tick'] == 0 and len(rows) == 150 and header['rows_not_recorded'] == 250
+def test_a_run_beyond_log_max_rows_keeps_its_start_and_its_end_and_both_replay_exactly(tmp_path, estimator):
+    # 412 ticks; the file holds 300 rows: the first 100, then a ring of 4 chunks of 50 whose last
+    # chunk (ticks 400..411) is partial and overwrote ticks 200..249: ticks 250..411 are kept
+    gains, (header, rows), c = simulated_run(tmp_path, duration_s=2.06, estimator=estimator,
+                                             log_max_rows=300, log_head_rows=100)
+    assert header['ticks'] == 412 and len(rows) == 100 + 162
+    assert header['segments'] == [[0, 100], [250, 162]] and header['not_kept'] == [[100, 249]]
+    assert header['rows_not_recorded'] == 150 and 'incomplete' not in header
+    assert any('ticks 100..249: not kept' in m for m in header['said'])
+    # the very rows of the same run logged whole, in tick order
+    _, (_, whole), _ = simulated_run(tmp_path, duration_s=2.06, estimator=estimator, name='whole.log')
+    np.testing.assert_array_equal(rows, np.concatenate([whole[:100], whole[250:]]))
+    assert rows[100, c('time_s')] == pytest.approx(250 * 0.005, abs=1e-9)
+    # the head from the start, the tail re-seeded from its first row: both replay bit for bit
     np.testing.assert_array_equal(replay(header, rows, gains), rows)
+    # and a changed reading in the tail is caught (the tail is replayed, not copied)
+    bad = rows.copy()
+    bad[200, c('gyro_rate')] += 50
+    assert np.any(replay(header, bad, gains)[200:] != bad[200:])
 
 
 @pytest.mark.parametrize('estimator', ['kalman', 'detector'])

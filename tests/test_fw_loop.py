@@ -87,7 +87,7 @@ def test_work_between_ticks_waits_for_slack_but_the_log_and_the_battery_not_for_
     dev.read_battery_v = lambda: seen['battery'].append(n[0]) or battery()
     core = make_core(S.load(), S.fw_config())
     core.set_gyro_bias(0.0)
-    writer = logfile.open_run_log(str(tmp_path / 'run.log'), 300, core.rows)
+    writer = logfile.open_run_log(str(tmp_path / 'run.log'), logfile.keep_plan(300, 0, 300), core.rows)
     writer.header(dict(core.rows.header(), config=S.fw_config()))
     log = logfile.LogBuffer(200, core.rows, writer, chunk_rows=50)     # the ring: 4 chunks, one forced after 150 rows
     log.first_info = core.header

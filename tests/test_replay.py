@@ -20,9 +20,11 @@ SCENARIO = {"name": "replay-test", "duration_s": 1.5, "sensors": {"gyro_noise_dp
             "pushes": [{"t_s": 0.2, "th1_dot_rad_s": 0.05}], "seed": 7}
 
 
-def simulate(path, sysfs=True, config_overrides=None):
+def simulate(path, sysfs=True, config_overrides=None, result=None):
     sc = parse_scenario(dict(SCENARIO, gains=PHYSICAL_GAINS))
-    fil.run_firmware(sc, log_path=str(path), sysfs=sysfs, config_overrides=config_overrides)
+    run = fil.run_firmware(sc, log_path=str(path), sysfs=sysfs, config_overrides=config_overrides)
+    if result is not None:
+        result.append(run)
     return str(path)
 
 
@@ -97,12 +99,27 @@ def test_a_log_of_the_previous_firmware_is_refused_with_what_to_do(tmp_path, cap
     assert "replay it with the tipbot version that wrote it" in err
 
 
-def test_a_log_beyond_log_max_rows_keeps_its_first_rows_and_replays_exactly(tmp_path):
-    path = simulate(tmp_path / "long.log", sysfs=False, config_overrides={"log_max_rows": 120})
+def test_a_log_beyond_log_max_rows_keeps_its_start_and_end_replays_exactly_and_says_what_is_missing(tmp_path, capsys):
+    runs = []
+    path = simulate(tmp_path / "long.log", sysfs=False, config_overrides={"log_max_rows": 200, "log_head_rows": 50},
+                    result=runs)
     header, rows = logfile.read_log(path)
-    assert header["first_tick"] == 0 and len(rows) == 120 and header["rows_not_recorded"] == header["ticks"] - 120
+    # the simulator's view of the firmware's estimates: tick k at sample k, nothing where not kept
+    xhat = runs[0].xhat
+    assert np.isnan(xhat[50:150]).all() and np.isfinite(xhat[:50]).all() and np.isfinite(xhat[150:300]).all()
+    # 300 ticks: the first 50, then a ring of 3 chunks of 50 holding the last ones, 150..299
+    assert header["ticks"] == 300 and len(rows) == 200 and header["rows_not_recorded"] == 100
+    assert header["segments"] == [[0, 50], [150, 150]] and header["not_kept"] == [[50, 149]]
     r = replay.replay_log(path)
     assert r.exact, r.diffs
+    code, out, err = run_main(capsys, path, "--no-plots")
+    assert code == 0 and "replays exactly" in out
+    assert "ticks 50..149 not kept (0.5 s;" in out and "re-seeded from its logged row" in out
+    # the export holds the same rows, and its header the gap
+    from hostsim.logs import export
+    csv_path, header_path = export.export_csv(path, str(tmp_path / "long.csv"))
+    assert len(open(csv_path).read().splitlines()) == 1 + 200
+    assert json.load(open(header_path))["not_kept"] == [[50, 149]]
 
 
 def test_the_firmware_log_from_the_in_memory_devices_replays_exactly(tmp_path):

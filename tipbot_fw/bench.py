@@ -196,10 +196,11 @@ def run_memory(n_ticks, gains=None, bare=False, sender=None):
     else:
         fd, path = tempfile.mkstemp(prefix='tipbot-bench-', suffix='.log')
         os.close(fd)
-        writer = logfile.open_run_log(path, n_ticks + 1, core.rows)
+        writer = logfile.open_run_log(path, logfile.keep_plan(config['log_max_rows'], config['log_head_rows'],
+                                                              n_ticks + 1), core.rows)
         os.unlink(path)
         writer.header({})
-        log = logfile.LogBuffer.for_file(writer, core.rows, config['log_max_rows'])
+        log = logfile.LogBuffer.for_file(writer, core.rows)
         _, page, words = heartbeat.create_page()
         extra = dict(heartbeat=heartbeat.Heartbeat(words, os.getppid(), page),
                      encoder_bound=EncoderBound(config, dev.counts_per_rot, gains.ts_s))

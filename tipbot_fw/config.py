@@ -36,8 +36,13 @@ Every field is validated; errors name the file and the dotted field path. Fields
   gyro_bias_quiet_dps                          detector only: the tracking learns only from samples
                                                whose corrected rate is within +- this (at rest)
   battery_period_s                             battery re-read period (outside the ticks)
-  log_max_rows                                 rows the log file holds at most (the first ones;
-                                               the rest of a longer run is counted, not recorded)
+  log_max_rows                                 rows the log file holds at most (its size: 232 bytes
+                                               a row for the Kalman core): a longer run keeps its
+                                               first log_head_rows and its last ones, the ticks
+                                               between are counted, not recorded
+  log_head_rows                                the first rows of a run always kept (calibration,
+                                               start), at most half of log_max_rows, whole chunks
+                                               of 50; 0: only the last ones
   realtime_priority                            SCHED_FIFO priority to request, 0 = don't
 """
 import copy
@@ -112,7 +117,8 @@ SPEC = {
     'gyro_bias_time_constant_s': _number(1, 3600, lo_open=False, allow_null=True),
     'gyro_bias_quiet_dps': _number(0, 100),
     'battery_period_s': _number(0.1, 10, lo_open=False),
-    'log_max_rows': _number(1, 720000, lo_open=False, integer=True),   # 1 h at 5 ms: 290 MB of file
+    'log_max_rows': _number(1, 720000, lo_open=False, integer=True),   # 1 h at 5 ms: 170 MB of file (Kalman)
+    'log_head_rows': _number(0, 720000, lo_open=False, integer=True),  # capped at log_max_rows / 2
     'realtime_priority': _number(0, 98, lo_open=False, integer=True),  # the supervisor takes one above
 }
 

@@ -232,9 +232,24 @@ def layout_from_header(header):
 # Rows a chunk of the file holds: written in the slack of one tick every CHUNK_ROWS ticks
 # (0.25 s at 5 ms), so a crash or a power cut loses at most that much of what the file had
 # been sent; the ring in memory holds RING_CHUNKS chunks, so a chunk may wait for a tick with
-# slack (tipbot_fw.loop) without being overwritten.
+# slack (tipbot_fw.loop) without being overwritten. A chunk is also the slot of the file's ring
+# (tipbot_fw.logcontainer): a long run's file keeps its head and its last chunks.
 CHUNK_ROWS = 50
 RING_CHUNKS = 8
+
+
+def keep_plan(max_rows, head_rows, needed_rows=None, chunk_rows=CHUNK_ROWS):
+    """What a run's file keeps of its rows -> (head, slots, chunk_rows) for LogWriter's keep:
+    every row when the run cannot outlast max_rows (needed_rows, from --duration); else the
+    first head_rows (at most half of max_rows, whole chunks) and a ring of the last ones in the
+    rest; with room for fewer than two chunks in the ring, the first max_rows only."""
+    if needed_rows is not None and needed_rows <= max_rows:
+        return int(needed_rows), 0, chunk_rows
+    head = min(int(head_rows), int(max_rows) // 2) // chunk_rows * chunk_rows
+    slots = (int(max_rows) - head) // chunk_rows
+    if slots < 2:
+        return int(max_rows), 0, chunk_rows
+    return head, slots, chunk_rows
 
 
 class LogBuffer(object):
@@ -245,13 +260,13 @@ class LogBuffer(object):
     TIMES) into the bytearray `data` at byte offset (k % capacity) * rows.row_bytes; `mem` is a
     float64 view of the same memory. The loop keeps `count` (rows ever stored).
 
-    With a ``writer`` (a tipbot_fw.logcontainer.LogWriter), the rows go to the file in chunks:
-    flush() writes the rows not yet written (at most ``max_rows`` in all: the rest are counted,
-    not recorded), so the ring needs only a few chunks; without one the ring keeps the newest
+    With a ``writer`` (a tipbot_fw.logcontainer.LogWriter, which decides what the file keeps:
+    its ``keep``), the rows go to the file in whole chunks: flush() writes the rows not yet
+    written, so the ring needs only a few chunks; without one the ring keeps the newest
     ``capacity`` rows (bench, tests).
     """
 
-    def __init__(self, capacity, rows, writer=None, max_rows=None, chunk_rows=CHUNK_ROWS):
+    def __init__(self, capacity, rows, writer=None, chunk_rows=CHUNK_ROWS):
         self.capacity = int(capacity)
         self.rows = rows
         self.row_bytes = rows.row_bytes
@@ -260,30 +275,28 @@ class LogBuffer(object):
         self.count = 0
         self.t0 = 0.0       # the clock at the start of the first tick (set by the loop)
         self.writer = writer
-        self.max_rows = max_rows
         self.chunk_rows = chunk_rows
         self.flushed = 0    # rows sent to the writer (or dropped beyond max_rows)
         self.first_info = None  # () -> dict for an INFO record before the first rows (the zeros)
 
     @classmethod
-    def for_file(cls, writer, rows, max_rows, chunk_rows=CHUNK_ROWS):
-        return cls(chunk_rows * RING_CHUNKS, rows, writer, max_rows, chunk_rows)
+    def for_file(cls, writer, rows, chunk_rows=CHUNK_ROWS):
+        return cls(chunk_rows * RING_CHUNKS, rows, writer, chunk_rows)
 
     def flush(self, end=None):
-        """Write the rows stored (``end`` of them: the loop's count during a run; else count) and
-        not yet written, outside the ticks. Never raises."""
-        end = self.count if end is None else end
+        """Write the rows stored and not yet written, outside the ticks: during a run (``end``:
+        the loop's count) up to the last whole chunk, the file's unit (the rest waits for the
+        next flush); at the end (no ``end``) all of them. Never raises."""
+        end = self.count if end is None else end - end % self.chunk_rows
         start = max(self.flushed, end - self.capacity)
         if self.writer is None or end <= start:
             return
-        stop = end if self.max_rows is None else min(end, self.max_rows)
         if self.first_info is not None:
             info = self.first_info()
             info['log_t0'] = self.t0
             self.writer.info(info)
             self.first_info = None
-        if stop > start:
-            self.writer.rows_bytes(*self._block(start, stop))
+        self.writer.rows_bytes(*self._block(start, end))
         self.flushed = end
 
     def _block(self, start, stop):
@@ -296,8 +309,8 @@ class LogBuffer(object):
         return self.data[p:] + self.data[:end - len(self.data)], stop - start
 
     def not_recorded(self):
-        """Rows stored but beyond max_rows (not in the file)."""
-        return 0 if self.max_rows is None else max(0, self.count - self.max_rows)
+        """Rows stored but not kept in the file (a long run's middle, LogWriter.not_kept)."""
+        return 0 if self.writer is None else self.writer.dropped
 
     def first_tick(self):
         """Index of the tick of the oldest row kept."""
@@ -347,10 +360,24 @@ def columns_header(columns=COLUMNS):
 STORED_LAYOUT = 'memory'
 
 
-def open_run_log(path, reserve_rows, rows):
+def open_run_log(path, keep, rows):
     """A LogWriter for a run log whose rows are memory rows of the layout `rows`
-    (LogBuffer.flush); the run's header must say which (rows.header())."""
-    return LogWriter(path, [(n, '') for n in rows.mem_names], reserve_rows, layout=STORED_LAYOUT)
+    (LogBuffer.flush), keeping what `keep` says (keep_plan); the run's header must say which
+    layout (rows.header())."""
+    return LogWriter(path, [(n, '') for n in rows.mem_names], layout=STORED_LAYOUT, keep=keep)
+
+
+def segments(header, nrows):
+    """-> [[first tick, rows]] of each run of consecutive ticks a log's rows hold, in order: one
+    for a log that holds a run from its first tick (or a version-1 ring's last rows), the head
+    and the kept tail of a long run's bounded log (header['segments'], header['not_kept'])."""
+    return header.get('segments') or [[header.get('first_tick', 0), nrows]]
+
+
+def tick_indices(header, nrows):
+    """-> the tick of each of a log's nrows rows (int array), from its segments."""
+    parts = [np.arange(first, first + n) for first, n in segments(header, nrows)]
+    return np.concatenate(parts).astype(int) if parts else np.zeros(0, dtype=int)
 
 
 def read_log(path):

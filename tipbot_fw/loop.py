@@ -18,7 +18,8 @@ since the previous read, made). That check is also what keeps the wheels' count 
 the core's max_count_step (the Kalman core's fixed-point range): the core does not check again.
 
 Between ticks, after the tick's writes and its overrun bookkeeping, in this order: the log's
-rows, written to the file in chunks (logfile.CHUNK_ROWS; no fsync in the loop); the battery
+rows, written to the file in whole chunks (logfile.CHUNK_ROWS, on the grid of chunks: the slots
+of the file's ring of a long run's last rows; no fsync in the loop); the battery
 (about once a second: its plausibility, and whether the supervisor is still there); the side
 task (tipbot_fw.slack: lights, tones, telemetry). Each runs in the first tick, from the one it
 is due in, that leaves at least SLACK_S (SLACK_FRACTION of a shorter period) before the next
@@ -239,8 +240,8 @@ class ControlLoop(object):
                     consecutive = 0
                 if k >= due:        # work between ticks: one comparison a tick until some is due
                     if k >= next_flush and (release - now() > min_slack or k - log.flushed >= urgent):
-                        flush(k)
-                        next_flush = k + chunk
+                        flush(k)                        # whole chunks: the file's unit
+                        next_flush = k - k % chunk + chunk
                     if k >= next_battery and (release - now() > min_slack or k - next_battery >= battery_every):
                         try:
                             bv = dev.read_battery_v()

@@ -36,8 +36,10 @@ def core_from_header(header, gains, check_gains=True):
 def replay(header, rows, gains, check_gains=True):
     """-> recomputed rows (same shape as rows; time columns copied from the log).
 
-    From tick 0 (start) if the log kept it, else restarted from the first kept row (which is
-    then copied, not recomputed).
+    Each run of consecutive ticks the log holds (logfile.segments: a long run's head and its
+    kept tail) is replayed on its own: from tick 0 (start) if it is the run's start, else
+    re-seeded from its first row, which holds the core's whole state (core.restore; that row is
+    copied, not recomputed), and every later row recomputed from there.
     """
     core = core_from_header(header, gains, check_gains)
     layout = core.rows
@@ -46,16 +48,21 @@ def replay(header, rows, gains, check_gains=True):
     overrun = logfile.FLAG_BITS['overrun']
     flags = layout.col('flags')
     readings = _reader(layout)
+    starts = {}
+    i = 0
+    for first, n in logfile.segments(header, len(rows)):
+        starts[i] = first
+        i += n
     for i in range(len(rows)):
         enc, gyro, battery_v = readings(rows[i])
         if battery_v != core.battery_v:
             core.set_battery(battery_v)
-        if i > 0:
+        if i not in starts:
             core.step(enc, gyro, one.data, 0)
-        elif header['first_tick'] == 0:
+        elif starts[i] == 0:
             core.start(enc, gyro, one.data, 0)
         else:
-            core.restore(rows[0], header['encoder_offsets'])
+            core.restore(rows[i], header['encoder_offsets'])
             continue
         out[i, 2:] = layout.to_file(one.mem)[0, 2:]
         # the overrun flag is the loop's, not the core's

@@ -4,7 +4,9 @@ Whatever ends the run (duration reached, fall, a signal, device failure, overrun
 by the supervisor, a bug) the motors are stopped first, then the log is finished, then the
 reason is reported. The log is open before the devices are touched, and its rows reach the
 file while the robot runs (tipbot_fw.logfile): its header at the start, the calibration and the
-encoder zeros as they are learnt, the rows in chunks, the end of the run last.
+encoder zeros as they are learnt, the rows in chunks, the end of the run last. The file has a
+fixed size (config log_max_rows): a longer run keeps its first log_head_rows rows and its last
+ones (logfile.keep_plan), and the run's last line names the ticks between them, not kept.
 """
 import sys
 import time
@@ -49,7 +51,8 @@ def base_header(gains, config, duration_s):
 def open_log(log_path, gains, config, duration_s):
     """The run's LogWriter (the rows of the core the configuration selects), with room reserved
     for its rows; LogWriteError (the path, a full disk) before anything runs."""
-    return logfile.open_run_log(log_path, _log_rows(config, gains.ts_s, duration_s), row_layout(gains, config))
+    keep = logfile.keep_plan(config['log_max_rows'], config['log_head_rows'], _needed_rows(gains.ts_s, duration_s))
+    return logfile.open_run_log(log_path, keep, row_layout(gains, config))
 
 
 class BeatingClock(object):
@@ -85,7 +88,7 @@ def run_session(devices, gains, config, clock, log_path=None, duration_s=None,
     header = base_header(gains, config, duration_s)
     header['counts_per_rot'] = list(devices.counts_per_rot)
     header['supervised'] = heartbeat.supervised
-    header['first_tick'] = 0     # a file holds a run's rows from its first tick (logfile.LogBuffer)
+    header['first_tick'] = 0     # a file holds a run's rows from its first tick (and a long run's last ones)
     layout = row_layout(gains, config)
     if log is None and log_path:
         try:
@@ -94,8 +97,8 @@ def run_session(devices, gains, config, clock, log_path=None, duration_s=None,
             say('no log: {}'.format(e.strerror))
     if log is not None:
         log.header(header)
-    rows = logfile.LogBuffer.for_file(log, layout, config['log_max_rows']) if log is not None else \
-        logfile.LogBuffer(_log_rows(config, gains.ts_s, duration_s), layout)
+    rows = logfile.LogBuffer.for_file(log, layout) if log is not None else \
+        logfile.LogBuffer(min(config['log_max_rows'], _needed_rows(gains.ts_s, duration_s) or 1 << 62), layout)
     run = {}    # what body() got to build: the core and the loop
 
     def learnt(doc):
@@ -164,8 +167,10 @@ def run_session(devices, gains, config, clock, log_path=None, duration_s=None,
                 if code == EXIT_OK:
                     code = header['exit_code'] = EXIT_ERROR
             note = '; log {}'.format(log.path)
-            if rows.not_recorded():
-                note += ' (the first {} ticks: limits log_max_rows)'.format(config['log_max_rows'])
+            gaps = log.not_kept()
+            if gaps:
+                note += ' (ticks {}: not kept, the file holds the start and the last ticks: log_max_rows, ' \
+                    'log_head_rows)'.format(', '.join('{}..{}'.format(a, b) for a, b in gaps))
         say('stopped: {} (exit {}, {} ticks){}'.format(msg, code, rows.count, note))
         try:
             cues.stopped(reason, code)    # after the log: its light and tone take up to a second
@@ -190,9 +195,7 @@ def log_refused_start(log, gains, config, duration_s, error, say=say):
         say('stopped: {} (exit {}, no ticks); log {}'.format(header['stop_message'], header['exit_code'], log.path))
 
 
-def _log_rows(config, ts_s, duration_s):
-    cap = config['log_max_rows']
-    if duration_s is not None:
-        cap = min(cap, int(round(duration_s / ts_s)) + 1)
-    return max(1, cap)
+def _needed_rows(ts_s, duration_s):
+    """Rows a run of duration_s writes at most (None: until stopped)."""
+    return None if duration_s is None else max(1, int(round(duration_s / ts_s)) + 1)
 

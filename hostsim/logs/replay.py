@@ -96,8 +96,8 @@ def _interpret(path, header, rows, names):
     if absent or "sha256" not in header.get("gains", {}):
         raise ReplayError("%s: incompatible log: its header lacks %s (written by tipbot_fw %s, this is %s)"
                           % (path, ", ".join(absent or ["gains.sha256"]), written_by, tipbot_fw.__version__))
-    if header.get("first_tick", 0) > 0 and "encoder_offsets" not in header:
-        raise ReplayError("%s: incompatible log: a ring-buffer log without encoder_offsets" % path)
+    if any(first > 0 for first, _ in logfile.segments(header, len(rows))) and "encoder_offsets" not in header:
+        raise ReplayError("%s: incompatible log: a log without its first ticks and without encoder_offsets" % path)
     # The configuration in force: fields this version has and the log lacks (an older firmware)
     # take their defaults, which the exactness check then vouches for; fields this version does
     # not know, or values it refuses, make the log incompatible.
@@ -116,9 +116,25 @@ def _interpret(path, header, rows, names):
         raise ReplayError("%s: the log has no ticks (the run stopped before its control loop: %s)"
                           % (path, header.get("stop_message", "see its header")))
     check_content(path, header, rows, names)
+    notes += gap_notes(header)
     if header.get("incomplete"):
         notes.append("the log is incomplete: %s" % header["incomplete"])
     return header, rows, notes
+
+
+def gap_notes(header):
+    """What a bounded log of a long run did not keep, and how its tail is replayed."""
+    notes = []
+    for a, b in header.get("not_kept", []):
+        notes.append("ticks %d..%d not kept (%.1f s; config log_max_rows, log_head_rows: the log holds the run's "
+                     "start and its last ticks)" % (a, b, (b - a + 1) * header["ts_s"]))
+    later = [first for first, _ in logfile.segments(header, 0)[1:]]
+    if later:
+        notes.append("replayed from each kept part's first tick (%s), re-seeded from its logged row (the core's "
+                     "whole state), which is copied, not recomputed" % ", ".join(str(t) for t in later))
+    if header.get("ring_dropped_chunks"):
+        notes.append("%d chunk(s) of the last ticks dropped: torn by a crash or damaged" % header["ring_dropped_chunks"])
+    return notes
 
 
 def expected_columns(header):
@@ -148,6 +164,14 @@ def check_content(path, header, rows, names):
             isinstance(c, int) and not isinstance(c, bool) and 1 <= c <= 100000 for c in counts):
         f.fail("counts_per_rot", "must be 4 positive integers, got %r" % (counts,))
     f.check("first_tick", header["first_tick"], fields.number(lo=0, lo_open=False, integer=True))
+    if "segments" in header:        # a rewritten log's header: its parts must describe its rows
+        seg = header["segments"]
+        if not (isinstance(seg, list) and all(isinstance(p, list) and len(p) == 2 and all(
+                isinstance(v, int) and not isinstance(v, bool) and v >= 0 for v in p) for p in seg)
+                and sum(p[1] for p in seg) == len(rows)
+                and all(a[0] + a[1] <= b[0] for a, b in zip(seg, seg[1:]))):
+            f.fail("segments", "must be [first tick, rows] of each kept part, in order, %d rows in all, got %r"
+                   % (len(rows), seg))
     if "encoder_offsets" in header:
         f.check("encoder_offsets", header["encoder_offsets"], fields.numbers(4))
     bad = np.argwhere(~np.isfinite(rows))
@@ -413,6 +437,11 @@ def plot(r, out_dir):
     if r.replayed is not None:
         series.append(("replayed (logged gains)", fw_replay.signals(r.header, r.replayed, gains),
                        dict(color="tab:orange", lw=1.0, ls="--")))
+    # the ticks a long run's log did not keep: shaded between the last row before and the first after
+    # (and the lines broken there: a NaN between the parts)
+    starts = [i for i in np.cumsum([n for _, n in logfile.segments(r.header, len(r.rows))])[:-1] if 0 < i < len(t)]
+    gaps = [(t[i - 1], t[i]) for i in starts]
+    t = np.insert(t, starts, np.nan)
     paths = []
     inputs = [("u", j, "u_" + n, "V") for n, j in zip(logfile.ACTUATED_NAMES, ACTUATED_INPUTS)]
     states = [("x_hat", i, "x^_" + n, u) for i, (n, u) in enumerate(zip(logfile.STATE_NAMES, logfile.STATE_UNITS))]
@@ -421,7 +450,9 @@ def plot(r, out_dir):
         fig, axes = plt.subplots(nrows, ncols, figsize=(11, 2.2 * nrows + 0.8), sharex=True, squeeze=False)
         for ax, (key, j, name, unit) in zip(axes.flat, panels):
             for label, sig, style in series:
-                ax.plot(t, sig[key][:, j], label=label, **style)
+                ax.plot(t, np.insert(sig[key][:, j], starts, np.nan), label=label, **style)
+            for k, (a, b) in enumerate(gaps):
+                ax.axvspan(a, b, color="0.85", zorder=0, label="not kept" if k == 0 else None)
             ax.set_ylabel("%s [%s]" % (name, unit))
             ax.grid(True, alpha=0.3)
         for ax in axes[-1]:

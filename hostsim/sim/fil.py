@@ -381,7 +381,12 @@ def _world_side(world):
 
 
 def _firmware_side(header, rows, gains, d_origin, n):
-    """The firmware's own view from its log (tipbot_fw.replay.signals), tick k <-> plant sample k."""
+    """The firmware's own view from its log (tipbot_fw.replay.signals), tick k <-> plant sample k
+    (NaN for the ticks a long run's bounded log did not keep, and after its last row)."""
+    ticks = logfile.tick_indices(header, len(rows))
+    dense = np.full((min(n, int(ticks[-1]) + 1 if len(ticks) else 0), rows.shape[1]), np.nan)
+    dense[ticks[ticks < len(dense)]] = rows[ticks < len(dense)]
+    rows = dense
     sig = fw_replay.signals(header, rows[:n], gains)
     shift = np.zeros(10)
     shift[:2] = d_origin
