@@ -129,33 +129,43 @@ def slow_ticks(clock, tick_s, from_tick=20, every=1, stall_s=None):
     return MemoryDevices(source=read)
 
 
-@pytest.mark.parametrize('tick_ms', [5.5, 6.0, 7.0, 8.0])
-def test_a_loop_that_cannot_keep_the_period_is_stopped_within_half_a_second(tick_ms):
+@pytest.mark.parametrize('tick_ms', [6.0, 7.0, 8.0, 20.0])
+def test_a_loop_that_cannot_keep_the_period_is_stopped_within_a_quarter_second(tick_ms):
     # every tick from the 20th on takes longer than the period: a period is skipped every few
     # ticks, the time the controller's model does not see grows, and the loop is stopped
     clock = VirtualClock()
     dev = slow_ticks(clock, tick_ms * 1e-3)
-    loop, dev, log = make_loop(clock, dev=dev, duration_s=10.0, overrun_window_s=0.5, max_lost_s=0.04)
-    with pytest.raises(OverrunLimit, match=r'^the loop is behind: 4\d\.\d ms lost within 0.5 s '
+    loop, dev, log = make_loop(clock, dev=dev, duration_s=10.0, overrun_window_s=0.3, max_lost_s=0.04)
+    with pytest.raises(OverrunLimit, match=r'^the loop is behind: \d\d\.\d ms lost within 0.3 s '
                                            r'\(limits.max_lost_s = 0.04 s within limits.overrun_window_s\), '
-                                           r'\d+ periods skipped, tick \d+ ended \d\.\d ms late$'):
+                                           r'\d+ periods skipped, tick \d+ ended \d+\.\d ms late$'):
         loop.run()
     slow_from_s = 19 * TS
-    assert clock.now() - slow_from_s < 0.5
-    assert loop.stats.skipped_periods >= 7 and 0.04 < loop.stats.max_lost_s < 0.04 + TS
+    assert clock.now() - slow_from_s < 0.25
+    assert loop.stats.skipped_periods >= 5 and 0.04 < loop.stats.max_lost_s < 0.04 + tick_ms * 1e-3
     flags = log.mem[:log.count, log.rows.flags_index].astype(int)
     assert (flags[:19] & OVERRUN == 0).all() and (flags[-3:] & OVERRUN != 0).all()
 
 
 def test_the_stop_comes_sooner_the_further_behind_the_loop_is():
     ends = {}
-    for tick_ms in (5.5, 8.0):
+    for tick_ms in (6.0, 8.0):
         clock = VirtualClock()
         loop, _, _ = make_loop(clock, dev=slow_ticks(clock, tick_ms * 1e-3), duration_s=10.0)
         with pytest.raises(OverrunLimit):
             loop.run()
-        ends[tick_ms] = clock.now()
-    assert ends[8.0] < 0.6 * ends[5.5]
+        ends[tick_ms] = clock.now() - 19 * TS      # since the ticks slowed down
+    assert ends[8.0] < 0.6 * ends[6.0]
+
+
+def test_a_loop_a_tenth_slow_goes_on():
+    # 5.5 ms a tick: a period skipped every 11 ticks, 9 % of the time lost; less than the
+    # 40 ms a window allows, and the loop is kept (the gains' delay margin is far larger)
+    clock = VirtualClock()
+    loop, _, _ = make_loop(clock, dev=slow_ticks(clock, 0.0055), duration_s=5.0)
+    stats = loop.run()
+    assert stats.overruns > 0.9 * stats.ticks and stats.skipped_periods > 60
+    assert 0.025 < stats.max_lost_s < 0.04
 
 
 @pytest.mark.parametrize('burst', [5, 10, 20])
@@ -197,15 +207,15 @@ def test_the_same_stall_is_ridden_out_when_the_window_allows_it():
     # covered skipped, and the loop goes on (the budget is the owner's to set, within bounds)
     clock = VirtualClock()
     loop, _, _ = make_loop(clock, dev=slow_ticks(clock, None, from_tick=30, stall_s=0.0612), duration_s=1.0,
-                           overrun_window_s=0.5, max_lost_s=0.07)
+                           overrun_window_s=0.3, max_lost_s=0.07)
     stats = loop.run()
     assert stats.overruns == 1 and stats.skipped_periods == 11 and 0.055 < stats.max_lost_s < 0.06
 
 
 def test_lost_time_leaves_the_window():
-    # two 30 ms stalls: 0.6 s apart they are two separate losses within a 0.5 s window; 0.3 s
+    # two 30 ms stalls: 0.4 s apart they are two separate losses for a 0.3 s window; 0.2 s
     # apart they add up to more than 40 ms and the loop stops at the second
-    for gap_ticks, stops in ((120, False), (60, True)):
+    for gap_ticks, stops in ((80, False), (40, True)):
         clock = VirtualClock()
         n = [0]
 
@@ -215,10 +225,10 @@ def test_lost_time_leaves_the_window():
                 clock.advance(0.03)
             return (0, 0, 0, 0), (0, 0)
 
-        loop, _, _ = make_loop(clock, dev=MemoryDevices(source=read), duration_s=2.0, overrun_window_s=0.5,
+        loop, _, _ = make_loop(clock, dev=MemoryDevices(source=read), duration_s=2.0, overrun_window_s=0.3,
                                max_lost_s=0.04)
         if stops:
-            with pytest.raises(OverrunLimit, match='periods skipped, tick 9[0-9] ended'):
+            with pytest.raises(OverrunLimit, match='periods skipped, tick 79 ended'):
                 loop.run()
         else:
             assert loop.run().overruns == 2

@@ -111,7 +111,7 @@ class ControlLoop(object):
     """
 
     def __init__(self, devices, core, clock, log, period_s, battery_v, battery_period_s=1.0,
-                 overrun_window_s=0.5, max_lost_s=0.04, duration_s=None, realtime_priority=0, heartbeat=NOT_SUPERVISED,
+                 overrun_window_s=0.3, max_lost_s=0.04, duration_s=None, realtime_priority=0, heartbeat=NOT_SUPERVISED,
                  encoder_bound=None, side=None):
         self.devices = devices
         self.core = core
