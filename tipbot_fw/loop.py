@@ -12,10 +12,12 @@ counted. The cores always assume the nominal period (the model is discrete at ts
 The overrun stop: whether the loop is falling behind, not whether a few ticks were late. The time
 lost within the last limits.overrun_window_s (the whole periods skipped there x period, plus the
 lateness of the tick just ended) is the time the controller's model did not see; the loop stops
-(OverrunLimit, exit 7) when it exceeds limits.max_lost_s, which is below the gains' delay margin.
-A burst of slightly late ticks, or one stall of a few periods, loses less; a tick that always
-takes longer than the period skips a period every few ticks and is stopped within a window. The
-bookkeeping runs only in a late tick: an on-time tick pays one comparison, as before.
+(OverrunLimit, exit 7) when it exceeds limits.max_lost_s: 40 ms within 0.3 s by default, a hold
+of the order of the gains' delay margins, the window twice the closed loop's slowest balancing
+mode (docs/architecture.md derives both). A burst of slightly late ticks, or one stall of a few
+periods, loses less; a tick that always takes longer than the period skips a period every few
+ticks and is stopped within a window. The bookkeeping runs only in a late tick: an on-time tick
+pays one comparison, as before.
 
 Each tick stores its index in the heartbeat page the supervisor watches (one store, no system
 call: tipbot_fw.heartbeat), and compares the readings with what the hardware can report
