@@ -111,6 +111,15 @@ def test_run_on_the_fake_ev3(fake, tmp_path, quick_config, capsys):
         assert fake.motor_duty(port) == 0 and not fake.motor_running(port), states[port]
 
 
+def test_an_old_config_with_the_overruns_in_a_row_still_runs_with_a_note(fake, tmp_path, capsys):
+    old = S.write_json(tmp_path / 'old.json', {'realtime_priority': 0, 'limits': {'max_consecutive_overruns': 5},
+                                               'gyro_calibration': {'settle_s': 0.05, 'duration_s': 0.05}})
+    assert cli.main(['check', '--config', old, '--sysfs-root', fake.sysfs_root]) == 0
+    _, err = capsys.readouterr()
+    assert 'tipbot: {}: field limits.max_consecutive_overruns is no longer used'.format(old) in err
+    assert 'Traceback' not in err
+
+
 def test_check_and_calibrate_on_the_fake_ev3(fake, quick_config, capsys):
     assert cli.main(['check', '--config', quick_config, '--sysfs-root', fake.sysfs_root]) == 0
     out = capsys.readouterr().out

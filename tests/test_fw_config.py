@@ -47,6 +47,15 @@ def test_null_bias_time_constant_disables_tracking(tmp_path):
     ({'wheel_radius_m': 0}, r'field wheel_radius_m must be a number in \(0.005, 0.1\], got 0'),
     ({'wheel_radius_m': '0.034'}, "field wheel_radius_m must be a number in .*got '0.034'"),
     ({'limits': {'max_consecutive_overruns': 2.5}}, 'field limits.max_consecutive_overruns must be an integer'),
+    # the overrun stop: a window of a few periods to 2 s, a lost time above 0 and below any delay margin
+    ({'limits': {'overrun_window_s': 0.01}}, r'field limits.overrun_window_s must be a number in \[0.02, 2.0\], got 0.01'),
+    ({'limits': {'overrun_window_s': 5}}, r'field limits.overrun_window_s must be a number in \[0.02, 2.0\], got 5'),
+    ({'limits': {'max_lost_s': 0}}, r'field limits.max_lost_s must be a number in \(0, 0.1\], got 0'),
+    ({'limits': {'max_lost_s': 1e6}}, r'field limits.max_lost_s must be a number in \(0, 0.1\], got 1000000.0'),
+    ({'limits': {'max_lost_s': None}}, r'field limits.max_lost_s must be a number in \(0, 0.1\], got None'),
+    ({'limits': {'max_lost_s': 0.06, 'overrun_window_s': 0.1}},
+     r'field limits.max_lost_s is 0.06 s, more than half of limits.overrun_window_s = 0.1 s: a loop running at '
+     r'half its rate would never be stopped$'),
     ({'ports': {'gyro': 'outA'}}, "field ports.gyro must be one of 'in1', 'in2', 'in3', 'in4', got 'outA'"),
     ({'ports': {'joint2': 'outA'}}, 'field ports.right_wheel is outA, the port of another motor too$'),
     ({'drivers': {'gyro': ''}}, 'field drivers.gyro must be a non-empty string'),
@@ -91,3 +100,25 @@ def test_missing_file(tmp_path):
 def test_default_file_is_complete_and_valid():
     with open(DEFAULT_PATH) as f:
         assert config_from_overrides({}) == json.load(f)
+
+
+def test_the_overrun_stop_of_earlier_versions_still_loads_with_a_note(tmp_path):
+    # an owner's config.json from before the lost-time stop: it loads, the field is ignored, and a
+    # note (one line, naming the file and the field) says so
+    path = write(tmp_path, {'limits': {'th1_rad': 0.5, 'max_consecutive_overruns': 5}})
+    notes = []
+    c = load_config(path, notes)
+    assert c['limits']['th1_rad'] == 0.5
+    assert 'max_consecutive_overruns' not in c['limits']
+    assert c['limits']['max_lost_s'] == load_config()['limits']['max_lost_s']
+    assert len(notes) == 1 and '\n' not in notes[0]
+    assert notes[0].startswith(path + ': field limits.max_consecutive_overruns is no longer used')
+    assert load_config(path)['limits'] == c['limits']        # without a list for the notes too
+
+
+def test_a_scenario_firmware_config_names_the_deprecated_field_in_its_place():
+    notes = []
+    config_from_overrides({'limits': {'max_consecutive_overruns': 7}}, 'scen.json', prefix='firmware_config.',
+                          notes=notes)
+    assert notes == ['scen.json: field firmware_config.limits.max_consecutive_overruns is no longer used (the '
+                     'overrun stop is now limits.max_lost_s within limits.overrun_window_s; see README): ignored']

@@ -1,5 +1,6 @@
 """tipbot_fw.session + safety: every way a run ends leaves the motors stopped and the log written."""
 import os
+import re
 import signal
 
 import numpy as np
@@ -167,8 +168,11 @@ def test_overruns(tmp_path):
     clock.on_sleep = TickCounter(dev, lambda n: n >= 10 and clock.advance(0.02))
     code, header, path, _ = session(tmp_path, dev, clock)
     h, rows = assert_stopped_and_logged(dev, path, 'overruns', 7, header)
-    assert h['loop']['max_consecutive_overruns'] == 5
-    assert all(int(f) & OVERRUN for f in rows[-5:, col_of(h, 'flags')])
+    # each tick from the 10th on 15 ms late (2-3 periods skipped): more than 40 ms lost at the third
+    assert re.match(r'the loop is behind: 4\d\.\d ms lost within 0.3 s', h['stop_message'])
+    assert h['loop']['max_consecutive_overruns'] == 3 and 0.04 < h['loop']['max_lost_s'] < 0.046
+    assert all(int(f) & OVERRUN for f in rows[-3:, col_of(h, 'flags')])
+    assert not any(int(f) & OVERRUN for f in rows[:-3, col_of(h, 'flags')])
 
 
 def test_low_battery_refuses_to_start(tmp_path):

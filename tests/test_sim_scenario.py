@@ -93,8 +93,8 @@ def test_section7_is_the_printed_initial_state_in_si():
      "field pushes[0].impulse_n_s must be a number in [-5.0, 5.0], got 1e+300"),
     ({"firmware_config": {"colour": "red"}}, "field firmware_config.colour is unknown"),
     ({"firmware_config": {"limits": 3}}, "field firmware_config.limits must be an object, got 3"),
-    ({"firmware_config": {"limits": {"max_consecutive_overruns": 1000}}},
-     "field firmware_config.limits.max_consecutive_overruns must be an integer in [1, 100], got 1000"),
+    ({"firmware_config": {"limits": {"max_lost_s": 1000}}},
+     "field firmware_config.limits.max_lost_s must be a number in (0, 0.1], got 1000"),
     ({"x0_si": [0, 0, 0.7, 0, 0, 0, 0, 0, 0, 0]},
      "field firmware_config.start_pose_rad.th1 is 0.7 rad, beyond limits.th1_rad = 0.6: the run would stop at its "
      "first tick"),

@@ -206,7 +206,8 @@ def run_memory(n_ticks, gains=None, bare=False, sender=None):
                      encoder_bound=EncoderBound(config, dev.counts_per_rot, gains.ts_s))
     loop = ControlLoop(dev, core, FrozenClock(), log, gains.ts_s, 8.0,
                        battery_period_s=config['battery_period_s'],
-                       max_consecutive_overruns=config['limits']['max_consecutive_overruns'],
+                       overrun_window_s=config['limits']['overrun_window_s'],
+                       max_lost_s=config['limits']['max_lost_s'],
                        duration_s=(n_ticks + 1) * gains.ts_s, realtime_priority=0, **extra)
     loop.side = slack.combine(OwnerCues(streams=()).in_loop(loop, config['limits']['warn_battery_v']),
                               sender.attach(log, loop.stats, core) if sender else None)
@@ -315,7 +316,7 @@ def brick_bench(devices, gains, config, n_ticks, say=print):
         log = logfile.LogBuffer(n_ticks, core.rows)
         loop = ControlLoop(wrapped, core, MonotonicClock(), log, gains.ts_s,
                            devices.read_battery_v(), duration_s=n_ticks * gains.ts_s,
-                           max_consecutive_overruns=10 ** 6,
+                           max_lost_s=float('inf'),
                            realtime_priority=config['realtime_priority'])
         try:
             stats = loop.run()

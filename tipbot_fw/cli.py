@@ -122,7 +122,10 @@ def _main(argv, guard, hbt, supervisor_problem):
     if args.command == 'identify':   # one motor, not the robot's full set of devices
         return identify.main_identify(args, say=_say)
     try:
-        config = load_config(args.config)
+        notes = []
+        config = load_config(args.config, notes)
+        for note in notes:
+            _say(note)
         gains = load_gains(args.gains) if getattr(args, 'gains', None) else None
         if gains is not None:
             check_config_against_gains(config, gains, args.config or 'the default configuration')

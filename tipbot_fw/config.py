@@ -18,7 +18,13 @@ Every field is validated; errors name the file and the dotted field path. Fields
   limits.min_battery_v                         refuse to start below this battery voltage
   limits.warn_battery_v                        warn (words, light, tone) when a reading while
                                                balancing is below this voltage
-  limits.max_consecutive_overruns              this many late ticks in a row -> safe stop
+  limits.overrun_window_s                      the sliding window the overrun stop looks back over
+  limits.max_lost_s                            time lost to late ticks within that window (whole
+                                               periods skipped x period, plus the current tick's
+                                               lateness) beyond which the loop is behind -> safe
+                                               stop (tipbot_fw.loop; docs/architecture.md)
+  (limits.max_consecutive_overruns             the stop of earlier versions: still accepted in a
+                                               config file, with a note, and not used)
   filters.encoder_rate_cutoff_hz               detector only: low-pass of the differentiated encoder positions
   filters.gyro_rate_cutoff_hz                  detector only: low-pass of the gyro rate (th1_dot)
   filters.disturbance_cutoff_hz                detector only: low-pass of the disturbance estimate w^
@@ -74,8 +80,14 @@ _one_of = fields.one_of
 _SIGN = _one_of(1, -1)
 _MOTOR_PORT = _one_of('outA', 'outB', 'outC', 'outD')
 
-# The most late ticks in a row a configuration may allow (0.5 s at 5 ms) before the safe stop.
-MAX_CONSECUTIVE_OVERRUNS = 100
+# The overrun stop's bounds. The window: from a few periods to 2 s (longer, a loop that is
+# behind goes on for seconds before it is stopped). The lost time: more than 0.1 s is beyond any
+# gains' delay margin (README, margins: 33 ms paper, 52 ms physical), and at most half the window
+# (a larger budget lets a loop that runs at half the rate go on for ever).
+OVERRUN_WINDOW_S = (0.02, 2.0)
+MAX_LOST_S = 0.1
+# The stop of earlier versions (late ticks in a row): its old bounds, for the files that still have it.
+DEPRECATED_LIMITS = {'max_consecutive_overruns': _number(1, 100, lo_open=False, integer=True)}
 
 # Leaf validators by dotted path; the set of paths is also the set of allowed fields.
 SPEC = {
@@ -105,7 +117,8 @@ SPEC = {
     'limits.th3_rad': _number(0, 3.2),
     'limits.min_battery_v': _number(5.0, 9.0, lo_open=False),   # within what a battery reads (plausibility)
     'limits.warn_battery_v': _number(5.0, 9.0, lo_open=False),  # and not below min_battery_v: validate()
-    'limits.max_consecutive_overruns': _number(1, MAX_CONSECUTIVE_OVERRUNS, lo_open=False, integer=True),
+    'limits.overrun_window_s': _number(OVERRUN_WINDOW_S[0], OVERRUN_WINDOW_S[1], lo_open=False),
+    'limits.max_lost_s': _number(0, MAX_LOST_S),
     'filters.encoder_rate_cutoff_hz': _number(0.5, 500, lo_open=False),   # and below Nyquist: check_config_against_gains
     'filters.gyro_rate_cutoff_hz': _number(0.5, 500, lo_open=False),
     'filters.disturbance_cutoff_hz': _number(0.01, 100, lo_open=False, allow_null=True),
@@ -161,6 +174,9 @@ def validate(config, source, error=ConfigError, prefix=''):
     if lim['warn_battery_v'] < lim['min_battery_v']:    # a warning the next start would refuse to run with
         f.fail('limits.warn_battery_v', 'is {!r} V, below limits.min_battery_v = {!r} V: the warning would come '
                'after the battery is too low to start again'.format(lim['warn_battery_v'], lim['min_battery_v']))
+    if lim['max_lost_s'] > 0.5 * lim['overrun_window_s']:
+        f.fail('limits.max_lost_s', 'is {!r} s, more than half of limits.overrun_window_s = {!r} s: a loop running '
+               'at half its rate would never be stopped'.format(lim['max_lost_s'], lim['overrun_window_s']))
     for j in ('th1', 'th2', 'th3'):     # a start beyond the stop limits would be a "fall" at tick 0
         pose, limit = config['start_pose_rad'][j], config['limits'][j + '_rad']
         if abs(pose) >= limit:
@@ -200,17 +216,36 @@ def defaults():
     return doc
 
 
-def config_from_overrides(overrides, source='<overrides>', error=ConfigError, prefix=''):
+def _drop_deprecated(overrides, f, notes):
+    """overrides without the fields of earlier versions (validated as they were), a note for each
+    in `notes`: an owner's config.json keeps loading."""
+    limits = overrides.get('limits') if isinstance(overrides, dict) else None
+    if not isinstance(limits, dict) or not set(limits) & set(DEPRECATED_LIMITS):
+        return overrides
+    out = dict(overrides, limits=dict(limits))
+    for key in sorted(set(limits) & set(DEPRECATED_LIMITS)):
+        f.check('limits.' + key, limits[key], DEPRECATED_LIMITS[key])
+        del out['limits'][key]
+        notes.append('{}: field {}limits.{} is no longer used (the overrun stop is now limits.max_lost_s within '
+                     'limits.overrun_window_s; see README): ignored'.format(f.source, f.prefix, key))
+    return out
+
+
+def config_from_overrides(overrides, source='<overrides>', error=ConfigError, prefix='', notes=None):
     """Defaults with `overrides` (a dict shaped like the config, any subset) merged in; a bad field
     raises error naming source and the field after prefix (a scenario's firmware_config:
-    hostsim.sim.scenario)."""
-    merged = _merge(defaults(), overrides, fields.Fields(source, error, prefix), '')
+    hostsim.sim.scenario). A field of an earlier version is dropped with a note appended to
+    `notes` (a list, or None: not kept)."""
+    f = fields.Fields(source, error, prefix)
+    overrides = _drop_deprecated(overrides, f, [] if notes is None else notes)
+    merged = _merge(defaults(), overrides, f, '')
     validate(merged, source, error, prefix)
     return merged
 
 
-def load_config(path=None):
-    """The configuration: defaults, with the fields of the JSON file `path` (if given) replacing them."""
+def load_config(path=None, notes=None):
+    """The configuration: defaults, with the fields of the JSON file `path` (if given) replacing them
+    (notes: as config_from_overrides)."""
     if path is None:
         return defaults()
-    return config_from_overrides(fields.read_object(path, ConfigError), path)
+    return config_from_overrides(fields.read_object(path, ConfigError), path, notes=notes)

@@ -7,8 +7,17 @@ A control tick does exactly one read_raw (5 sysfs reads) and one write_duties (a
 Timing: tick k is released at t0 + k * period, the deadline advanced by exactly one period each
 tick (no drift). A tick whose work ends after the next release is an overrun: the next tick
 starts at once; releases missed entirely are skipped (whole periods, the grid is kept) and
-counted. limits.max_consecutive_overruns overruns in a row stop the run. The cores always assume
-the nominal period (the model is discrete at ts_s).
+counted. The cores always assume the nominal period (the model is discrete at ts_s).
+
+The overrun stop: whether the loop is falling behind, not whether a few ticks were late. The time
+lost within the last limits.overrun_window_s (the whole periods skipped there x period, plus the
+lateness of the tick just ended) is the time the controller's model did not see; the loop stops
+(OverrunLimit, exit 7) when it exceeds limits.max_lost_s: 40 ms within 0.3 s by default, a hold
+of the order of the gains' delay margins, the window twice the closed loop's slowest balancing
+mode (docs/architecture.md derives both). A burst of slightly late ticks, or one stall of a few
+periods, loses less; a tick that always takes longer than the period skips a period every few
+ticks and is stopped within a window. The bookkeeping runs only in a late tick: an on-time tick
+pays one comparison, as before.
 
 Each tick stores its index in the heartbeat page the supervisor watches (one store, no system
 call: tipbot_fw.heartbeat), and compares the readings with what the hardware can report
@@ -30,6 +39,7 @@ come. Until the next tick with work due, a tick pays one integer comparison for 
 
 Motors are not stopped here: the caller (tipbot_fw.session) stops them in its finally clause.
 """
+import collections
 import gc
 import os
 
@@ -60,6 +70,7 @@ class LoopStats(object):
         self.overruns = 0
         self.max_consecutive_overruns = 0
         self.skipped_periods = 0
+        self.max_lost_s = 0.0         # the most time lost within one overrun window
         self.battery_reads = 0
         self.battery_v = None
         self.realtime = None
@@ -98,11 +109,12 @@ class ControlLoop(object):
     stop after that many periods' worth of ticks (None: run until stopped); realtime_priority:
     SCHED_FIFO priority to ask for during the run (0: don't); heartbeat: the supervisor's page
     (tipbot_fw.heartbeat); encoder_bound: a plausibility.EncoderBound (None: only the gyro's
-    bound is checked); side: a side task (tipbot_fw.slack) or None, settable until run().
+    bound is checked); side: a side task (tipbot_fw.slack) or None, settable until run();
+    overrun_window_s, max_lost_s: the overrun stop (the module's docstring).
     """
 
     def __init__(self, devices, core, clock, log, period_s, battery_v, battery_period_s=1.0,
-                 max_consecutive_overruns=5, duration_s=None, realtime_priority=0, heartbeat=NOT_SUPERVISED,
+                 overrun_window_s=0.3, max_lost_s=0.04, duration_s=None, realtime_priority=0, heartbeat=NOT_SUPERVISED,
                  encoder_bound=None, side=None):
         self.devices = devices
         self.core = core
@@ -111,7 +123,8 @@ class ControlLoop(object):
         self.period_s = period_s
         self.battery_v = battery_v
         self.battery_every = max(1, int(round(battery_period_s / period_s)))
-        self.max_consecutive_overruns = max_consecutive_overruns
+        self.overrun_window_s = overrun_window_s
+        self.max_lost_s = max_lost_s
         self.n_ticks = None if duration_s is None else max(1, int(round(duration_s / period_s)))
         self.realtime_priority = realtime_priority
         self.heartbeat = heartbeat
@@ -147,6 +160,12 @@ class ControlLoop(object):
         raise JointLimit('joint limit: th2 = {:.3f} rad, th3 = {:.3f} rad (limits {}, {}) at tick {}'.format(
             th2, th3, lim2, lim3, k))
 
+    def _behind(self, k, lost_s, late_s):
+        skipped = int(round((lost_s - late_s) / self.period_s)) + int(late_s / self.period_s)
+        raise OverrunLimit('the loop is behind: {:.1f} ms lost within {} s (limits.max_lost_s = {} s within '
+                           'limits.overrun_window_s), {} periods skipped, tick {} ended {:.1f} ms late'.format(
+                               lost_s * 1e3, self.overrun_window_s, self.max_lost_s, skipped, k, late_s * 1e3))
+
     def _run(self, stats):
         # Locals: attribute and global lookups cost real time on the brick.
         dev = self.devices
@@ -164,7 +183,9 @@ class ControlLoop(object):
         period = self.period_s
         n_ticks = self.n_ticks
         battery_every = self.battery_every
-        max_overruns = self.max_consecutive_overruns
+        window = self.overrun_window_s
+        max_lost = self.max_lost_s
+        skips = collections.deque()     # (release, seconds) of the periods skipped within the window
         hbt = self.heartbeat
         beat = hbt.words if hbt.words is not None else [0] * 8   # the same store either way
         bound = (self.encoder_bound or EncoderBound(None, None, period)).with_max_step(core.max_count_step)
@@ -229,13 +250,20 @@ class ControlLoop(object):
                     consecutive += 1
                     if consecutive > stats.max_consecutive_overruns:
                         stats.max_consecutive_overruns = consecutive
-                    if consecutive >= max_overruns:
-                        raise OverrunLimit('{} consecutive overruns (limits.max_consecutive_overruns), '
-                                           'last one {:.1f} ms late at tick {}'.format(consecutive, late * 1e3, k - 1))
+                    while skips and skips[0][0] <= release - window:
+                        skips.popleft()
+                    lost = late
+                    for _, skipped_s in skips:
+                        lost += skipped_s
+                    if lost > stats.max_lost_s:
+                        stats.max_lost_s = lost
+                    if lost > max_lost:
+                        self._behind(k - 1, lost, late)
                     missed = int(late / period)
                     if missed:
                         release += missed * period
                         stats.skipped_periods += missed
+                        skips.append((release, missed * period))
                 else:
                     consecutive = 0
                 if k >= due:        # work between ticks: one comparison a tick until some is due

@@ -13,7 +13,8 @@ Exit codes of `python3 -m tipbot_fw` (also in README/cli help):
       rate beyond +-440 deg/s, an encoder jump faster than any motor turns, a battery voltage
       outside what an EV3 can run on or jumping implausibly)
   6   fall (|th1| beyond limits.th1_rad) or a joint beyond its limit: stopped in that tick
-  7   limits.max_consecutive_overruns late ticks in a row
+  7   the loop fell behind: more than limits.max_lost_s lost to late ticks (periods skipped,
+      lateness) within limits.overrun_window_s
   8   the controller stalled: its supervisor saw no heartbeat, stopped the motors and stopped it
   9   (supervisor) the controller died without exiting (SIGKILL, a crash, out of memory): the
       supervisor stopped the motors; the log keeps the rows written before

@@ -129,7 +129,7 @@ def run_session(devices, gains, config, clock, log_path=None, duration_s=None,
         rows.first_info = core.header       # the encoder zeros and the start estimate, with the first rows
         run['loop'] = ControlLoop(devices, core, clock, rows, gains.ts_s, bv,
                                   battery_period_s=config['battery_period_s'],
-                                  max_consecutive_overruns=lim['max_consecutive_overruns'],
+                                  overrun_window_s=lim['overrun_window_s'], max_lost_s=lim['max_lost_s'],
                                   duration_s=duration_s, realtime_priority=realtime_priority,
                                   heartbeat=heartbeat,
                                   encoder_bound=EncoderBound(config, devices.counts_per_rot, gains.ts_s))

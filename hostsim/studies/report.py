@@ -318,8 +318,8 @@ def margins_section(margins):
     if margins.get("ablation"):
         labels = sorted({r["gains"] for r in margins["ablation"]})
         lines += ["### What each effect costs", "",
-                  "The realistic brick as the firmware is (it stops after limits.max_consecutive_overruns late "
-                  "ticks in a row), then with that stop lifted to %d so that every run shows what the effects do "
+                  "The realistic brick as the firmware is (it stops when more than limits.max_lost_s is lost to "
+                  "late ticks within limits.overrun_window_s), then with that stop lifted to %s so that every run shows what the effects do "
                   "to the balancing: all on, all but one (the effect whose removal helps most first), all off, and "
                   "each alone; %d seed(s) per row (`balanced`: how many balanced)."
                   % (meta["overrun_limit_lifted"], meta["seeds"]), "",
