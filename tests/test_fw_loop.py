@@ -9,7 +9,7 @@ from tipbot_fw import logfile
 from tipbot_fw.clock import VirtualClock
 from tipbot_fw.core import make_core
 from tipbot_fw.devices import MemoryDevices
-from tipbot_fw.loop import ControlLoop
+from tipbot_fw.loop import SIDE_WAIT_S, ControlLoop
 from tipbot_fw.safety import OverrunLimit
 from tipbot_fw.session import run_session
 
@@ -99,10 +99,11 @@ def test_work_between_ticks_waits_for_slack_but_the_log_and_the_battery_not_for_
         return k + 10
 
     loop = ControlLoop(dev, core, clock, log, TS, 8.0, battery_period_s=0.1, duration_s=1.5, side=side)
+    assert round(SIDE_WAIT_S / TS) == 10
     stats = loop.run()
     assert stats.ticks == 300 and stats.overruns == 0
-    # the side task: on time with slack, never forced without (the first tick with slack again)
-    assert seen['side'] == list(range(1, 61, 10)) + list(range(220, 300, 10))
+    # the side task: on time with slack; without, once it has waited loop.SIDE_WAIT_S (10 ticks)
+    assert seen['side'] == list(range(1, 61, 10)) + list(range(71, 212, 20)) + list(range(221, 300, 10))
     # the battery: on its grid with slack, else a whole period (20 ticks) late
     assert seen['battery'] == [20, 40] + [80, 120, 160, 200] + list(range(220, 300, 20))
     # the log's chunks: on time with slack; without, before the ring overwrites what is not written
