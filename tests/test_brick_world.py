@@ -158,7 +158,9 @@ def test_the_firmware_sees_real_lateness_and_stops_when_it_falls_behind():
     assert run.header["stop_message"].startswith("the loop is behind")
     assert run.t_s[-1] < 0.5                        # stopped within the overrun window
     flags = run.flags[np.isfinite(run.flags)].astype(int)
-    assert np.all(flags[-5:] & logfile.FLAG_BITS["overrun"])
+    late = (flags & logfile.FLAG_BITS["overrun"]) != 0
+    assert late[-1] and late.mean() > 0.5           # the stopping tick ended late, as most did
+    assert run.header["loop"]["skipped_periods"] > 0
     # the firmware's own tick time: its reads, compute and writes
     assert np.nanmedian(run.tick_work_s) > 0.005
 
