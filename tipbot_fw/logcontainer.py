@@ -417,15 +417,15 @@ def _read_ring(data, ring, ncols):
         rec = data[p:p + slot_bytes]
         if not any(rec):
             continue                     # never written
-        ok = len(rec) >= _REC.size + _ROWS.size + 4
+        try:                             # the record as anywhere else; any fault makes it torn
+            got = _record_at('', rec, 0, len(rec))
+        except LogFormatError:
+            got = None
+        ok = isinstance(got, tuple) and got[0] == ROWS and len(got[1]) >= _ROWS.size
         if ok:
-            tag, n, hcrc = _REC.unpack_from(rec, 0)
-            ok = tag == ROWS and _crc(rec[:8]) == hcrc and _ROWS.size <= n <= len(rec) - _REC.size - 4
-        if ok:
-            payload = memoryview(rec)[_REC.size:_REC.size + n]
+            payload = got[1]
             first, count = _ROWS.unpack_from(payload, 0)
-            ok = (_crc(payload) == _U32.unpack_from(rec, _REC.size + n)[0] and 0 < count <= slot_rows
-                  and n == _ROWS.size + 8 * ncols * count and first >= head
+            ok = (0 < count <= slot_rows and len(payload) == _ROWS.size + 8 * ncols * count and first >= head
                   and (first - head) % slot_rows == 0 and (first - head) // slot_rows % slots == s)
         if ok:
             found.append((first, count, np.frombuffer(payload, dtype='<f8', offset=_ROWS.size).reshape(count, ncols)))

@@ -374,6 +374,15 @@ def segments(header, nrows):
     return header.get('segments') or [[header.get('first_tick', 0), nrows]]
 
 
+def segment_rows(header, nrows):
+    """-> [(row index, first tick)] where each of segments() begins among a log's rows."""
+    out, i = [], 0
+    for first, n in segments(header, nrows):
+        out.append((i, first))
+        i += n
+    return out
+
+
 def tick_indices(header, nrows):
     """-> the tick of each of a log's nrows rows (int array), from its segments."""
     parts = [np.arange(first, first + n) for first, n in segments(header, nrows)]

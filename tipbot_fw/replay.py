@@ -48,11 +48,7 @@ def replay(header, rows, gains, check_gains=True):
     overrun = logfile.FLAG_BITS['overrun']
     flags = layout.col('flags')
     readings = _reader(layout)
-    starts = {}
-    i = 0
-    for first, n in logfile.segments(header, len(rows)):
-        starts[i] = first
-        i += n
+    starts = dict(logfile.segment_rows(header, len(rows)))
     for i in range(len(rows)):
         enc, gyro, battery_v = readings(rows[i])
         if battery_v != core.battery_v:

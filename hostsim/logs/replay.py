@@ -439,7 +439,7 @@ def plot(r, out_dir):
                        dict(color="tab:orange", lw=1.0, ls="--")))
     # the ticks a long run's log did not keep: shaded between the last row before and the first after
     # (and the lines broken there: a NaN between the parts)
-    starts = [i for i in np.cumsum([n for _, n in logfile.segments(r.header, len(r.rows))])[:-1] if 0 < i < len(t)]
+    starts = [i for i, _ in logfile.segment_rows(r.header, len(r.rows))[1:] if 0 < i < len(t)]
     gaps = [(t[i - 1], t[i]) for i in starts]
     t = np.insert(t, starts, np.nan)
     paths = []
