@@ -57,33 +57,24 @@ def one_of(*choices):
     return check
 
 
-def string(v):
-    if not isinstance(v, str):
-        return 'must be a string, got {!r}'.format(v)
-    return None
+def _instance_of(kind, what):
+    """Checker of a value of JSON type `kind` (a Python type), described as `what`."""
+    def check(v):
+        if not isinstance(v, kind):
+            return 'must be {}, got {!r}'.format(what, v)
+        return None
+    return check
+
+
+string = _instance_of(str, 'a string')
+boolean = _instance_of(bool, 'true or false')
+obj = _instance_of(dict, 'an object')
+array = _instance_of(list, 'a list')
 
 
 def nonempty_string(v):
     if not isinstance(v, str) or not v:
         return 'must be a non-empty string, got {!r}'.format(v)
-    return None
-
-
-def boolean(v):
-    if not isinstance(v, bool):
-        return 'must be true or false, got {!r}'.format(v)
-    return None
-
-
-def obj(v):
-    if not isinstance(v, dict):
-        return 'must be an object, got {!r}'.format(v)
-    return None
-
-
-def array(v):
-    if not isinstance(v, list):
-        return 'must be a list, got {!r}'.format(v)
     return None
 
 
