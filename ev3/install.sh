@@ -6,6 +6,10 @@
 #        ./install.sh --service     check, then install and enable tipbot.service (uses sudo) so
 #                                   the controller starts at boot
 #        ./install.sh --remove-service   disable and remove tipbot.service (uses sudo)
+#        ./install.sh --rtprio      check, then let this user run SCHED_FIFO (uses sudo): writes
+#                                   $LIMITS_DIR/tipbot.conf (default /etc/security/limits.d), which
+#                                   pam_limits applies to every new login (ssh, `make run`; log in
+#                                   again); tipbot.service has its own LimitRTPRIO
 # Needs: ev3dev-stretch (Debian 9): python3 (3.5), python3-numpy (1.12), python3-ev3dev2 (2.1.0).
 # $PYTHON names another interpreter (default python3).
 #
@@ -145,5 +149,13 @@ case "${1:---check}" in
         rm -f "$unit"
         exit $rc
         ;;
-    *) echo "usage: $0 [--check|--service|--remove-service]" >&2; exit 2 ;;
+    --rtprio)
+        # the loop asks for SCHED_FIFO 50 and the supervisor one above (config realtime_priority)
+        limits="${LIMITS_DIR:-/etc/security/limits.d}/tipbot.conf"
+        say "granting $(id -un) real-time priority up to 60: $limits (log in again for it to apply)"
+        printf '# tipbot (install.sh --rtprio): the balancing loop and its supervisor run SCHED_FIFO\n%s - rtprio 60\n' \
+            "$(id -un)" | sudo tee "$limits" >/dev/null
+        exit $?
+        ;;
+    *) echo "usage: $0 [--check|--service|--remove-service|--rtprio]" >&2; exit 2 ;;
 esac

@@ -69,7 +69,14 @@ class Robot(object):
                 kids = f.read().split()
         except OSError:
             return None
-        return int(kids[0]) if kids else None
+        for kid in kids:        # the controller, not the guard (a fork of the supervisor)
+            try:
+                with open('/proc/{}/cmdline'.format(kid), 'rb') as f:
+                    if b'\0-m\0tipbot_fw\0' in f.read():
+                        return int(kid)
+            except OSError:
+                pass
+        return None
 
     def wait_driving(self, timeout_s=20.0):
         """Turn joint 2 slowly to and fro (1 count per 10 ms, between 0 and 28 counts, 0.5 rad), so
@@ -125,14 +132,22 @@ class Robot(object):
 
 def inject(robot, fault):
     """Inject ``fault`` into a driving robot -> seconds to all motors stopped (None: never).
-    Faults: 'kill-controller', 'kill-supervisor', 'stop-controller', or a signal name sent to the
-    controller ('SIGQUIT', ...)."""
+    Faults: 'kill-controller', 'kill-supervisor', 'stop-controller', 'kill-group' and 'stop-group'
+    (SIGKILL, SIGSTOP to the run's whole process group), 'stop-both' (SIGSTOP to the supervisor,
+    then to the controller), or a signal name sent to the controller ('SIGQUIT', ...)."""
     pid = robot.controller_pid()
     if fault == 'kill-controller':
         os.kill(pid, signal.SIGKILL)
     elif fault == 'kill-supervisor':
         os.kill(robot.proc.pid, signal.SIGKILL)
     elif fault == 'stop-controller':
+        os.kill(pid, signal.SIGSTOP)
+    elif fault == 'kill-group':
+        os.killpg(robot.proc.pid, signal.SIGKILL)
+    elif fault == 'stop-group':
+        os.killpg(robot.proc.pid, signal.SIGSTOP)
+    elif fault == 'stop-both':
+        os.kill(robot.proc.pid, signal.SIGSTOP)
         os.kill(pid, signal.SIGSTOP)
     else:
         os.kill(pid, getattr(signal, fault) if fault.startswith('SIG') and hasattr(signal, fault)

@@ -61,6 +61,16 @@ def test_nan_and_inf(tmp_path):
     refused(tmp_path, doc_with(u_max_v=float('inf')), 'field u_max_v is Infinity, not a finite number')
 
 
+@pytest.mark.parametrize('where', ['B', 'kalman.L'])
+def test_an_entry_whose_products_overflow_is_refused_in_one_line(tmp_path, where):
+    # 1e308 is finite, but A - B K or (I - L C) A overflow: refused by the entry's bound, named
+    doc = S.gains_doc()
+    block = doc['kalman'] if where == 'kalman.L' else doc
+    block[where.split('.')[-1]][0][0] = 1e308
+    with np.errstate(all='raise'):      # and not a warning on the way
+        refused(tmp_path, doc, r'field {} has an entry of 1e\+308 \(in SI\), beyond'.format(re.escape(where)))
+
+
 def test_non_number_entry(tmp_path):
     B = S.gains_doc()['B']
     B[0][0] = '1.0'

@@ -168,11 +168,14 @@ def test_overruns(tmp_path):
     clock.on_sleep = TickCounter(dev, lambda n: n >= 10 and clock.advance(0.02))
     code, header, path, _ = session(tmp_path, dev, clock)
     h, rows = assert_stopped_and_logged(dev, path, 'overruns', 7, header)
-    # each tick from the 10th on 15 ms late (2-3 periods skipped): more than 40 ms lost at the third
-    assert re.match(r'the loop is behind: 4\d\.\d ms lost within 0.3 s', h['stop_message'])
-    assert h['loop']['max_consecutive_overruns'] == 3 and 0.04 < h['loop']['max_lost_s'] < 0.046
-    assert all(int(f) & OVERRUN for f in rows[-3:, col_of(h, 'flags')])
-    assert not any(int(f) & OVERRUN for f in rows[:-3, col_of(h, 'flags')])
+    # each tick from the 10th on 15 ms late (3 periods skipped): besides the longest hold, more
+    # than 40 ms lost at the fifth; every skipped period counted, the stopping tick's too
+    assert re.match(r'the loop is behind: \d\d\.\d ms lost within 0.3 s besides its longest hold of 15.0 ms',
+                    h['stop_message'])
+    assert h['loop']['max_consecutive_overruns'] == 5 and 0.04 < h['loop']['max_lost_s'] < 0.06
+    assert h['loop']['skipped_periods'] == 14 and '14 periods skipped' in h['stop_message']
+    assert all(int(f) & OVERRUN for f in rows[-5:, col_of(h, 'flags')])
+    assert not any(int(f) & OVERRUN for f in rows[:-5, col_of(h, 'flags')])
 
 
 def test_low_battery_refuses_to_start(tmp_path):

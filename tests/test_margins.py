@@ -19,6 +19,25 @@ def test_each_margin_moves_only_its_own_effect():
     assert sc.pushes[0].link == 3 and sc.pushes[0].impulse_n_s == -0.3 and sc.brick.ideal
     assert margins.margin_scenario(base, "gyro_drift", -0.01, 0.005).brick.gyro_bias_ramp_dps_s == -0.01
     assert margins.margin_scenario(base, "gyro_freeze", 100.0, 0.005).brick.gyro_freeze_s == pytest.approx(0.1)
+    sc = margins.margin_scenario(base, "single_stall", 80.0, 0.005)
+    assert sc.brick.single_stall_s == pytest.approx(0.08) and sc.brick.timed and sc.brick.tacho_access_s == (0, 0)
+    # the firmware's own hold lifted to its bound for the search; the start pose kept
+    assert sc.firmware_config["limits"]["max_stall_s"] == 0.5 and "start_pose_rad" in sc.firmware_config
+
+
+def test_one_stall_holds_the_duties_and_the_robot_rides_it_out(monkeypatch):
+    # 120 ms without the controller at t = 2.5 s (the simulation's clock: the calibration takes
+    # the first 1.1 s), motors held: the robot stands on (physical gains),
+    # the late tick's flags say how many periods the core predicted through
+    import numpy as np
+    from hostsim.sim.fil import run_firmware
+    monkeypatch.setattr(margins, "PUSH_AT_S", 2.5)
+    base = dataclasses.replace(load_scenario(margins.BASE_SCENARIO), brick=Brick(), duration_s=4.0)
+    sc = margins.margin_scenario(base, "single_stall", 120.0, 0.005)
+    run = run_firmware(sc, gains_doc=margins._gains("gains/physical.json"))
+    assert margins.balances(run) and run.completed
+    skipped = run.flags[np.isfinite(run.flags)].astype(int) >> 7
+    assert 22 <= skipped.max() <= 26 and (skipped > 0).sum() == 1
 
 
 def test_bisection_finds_the_push_the_robot_takes_and_the_report_shows_it(monkeypatch):

@@ -22,7 +22,12 @@ Every field is validated; errors name the file and the dotted field path. Fields
   limits.max_lost_s                            time lost to late ticks within that window (whole
                                                periods skipped x period, plus the current tick's
                                                lateness) beyond which the loop is behind -> safe
-                                               stop (tipbot_fw.loop; docs/architecture.md)
+                                               stop (tipbot_fw.loop; docs/architecture.md); the
+                                               window's longest single hold is left out of it
+  limits.max_stall_s                           the longest single stall ridden out: the supervisor
+                                               holds a frozen controller's last duties that long,
+                                               then stops the motors; a loop back from a longer
+                                               stall stops (docs/architecture.md: the loop's timing)
   (limits.max_consecutive_overruns             the stop of earlier versions: still accepted in a
                                                config file, with a note, and not used)
   filters.encoder_rate_cutoff_hz               detector only: low-pass of the differentiated encoder positions
@@ -86,6 +91,13 @@ _MOTOR_PORT = _one_of('outA', 'outB', 'outC', 'outD')
 # (a larger budget lets a loop that runs at half the rate go on for ever).
 OVERRUN_WINDOW_S = (0.02, 2.0)
 MAX_LOST_S = 0.1
+# The single-stall ride-out (docs/architecture.md, the loop's timing): above the stalls a
+# loaded brick shows (10-30 ms, 87 ms seen), below the 180-316 ms the physical gains ride out
+# (margins). Bounds: a stall shorter than 4 periods is an ordinary late tick; one of 0.5 s is
+# beyond any three-link robot's recovery (its unstable pole, about 10/s, grows an error e^5 =
+# 150 times in that time).
+MAX_STALL_S = 0.15
+MAX_STALL_BOUNDS_S = (0.02, 0.5)
 # The stop of earlier versions (late ticks in a row): its old bounds, for the files that still have it.
 DEPRECATED_LIMITS = {'max_consecutive_overruns': _number(1, 100, lo_open=False, integer=True)}
 
@@ -119,6 +131,7 @@ SPEC = {
     'limits.warn_battery_v': _number(5.0, 9.0, lo_open=False),  # and not below min_battery_v: validate()
     'limits.overrun_window_s': _number(OVERRUN_WINDOW_S[0], OVERRUN_WINDOW_S[1], lo_open=False),
     'limits.max_lost_s': _number(0, MAX_LOST_S),
+    'limits.max_stall_s': _number(MAX_STALL_BOUNDS_S[0], MAX_STALL_BOUNDS_S[1], lo_open=False),
     'filters.encoder_rate_cutoff_hz': _number(0.5, 500, lo_open=False),   # and below Nyquist: check_config_against_gains
     'filters.gyro_rate_cutoff_hz': _number(0.5, 500, lo_open=False),
     'filters.disturbance_cutoff_hz': _number(0.01, 100, lo_open=False, allow_null=True),

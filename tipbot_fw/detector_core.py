@@ -183,6 +183,10 @@ class DetectorCore(object):
         buf[offset + _ROW_Z:offset + _ROW_END] = zb
         return [d0, d1, d2, d3], flags & STOP_FLAGS
 
+    def skip(self, periods):
+        """Periods the loop missed: the paper's core, kept as published, resumes from its last
+        estimate (the Kalman core predicts through them: tipbot_fw.kalman)."""
+
     def restore(self, row, encoder_offsets):
         """State as right after the tick that produced the (file layout) log row `row`."""
         r = [float(x) for x in row]

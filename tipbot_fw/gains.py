@@ -64,6 +64,10 @@ def _check_zero(m, key, what, f):
 
 
 def spectral_radius(m):
+    """Of a product of the file's matrices: inf when an entry overflowed (a 1e308 in B times K),
+    which the stability checks then refuse like any other unstable loop, naming the field."""
+    if not np.all(np.isfinite(m)):
+        return float('inf')
     return float(np.max(np.abs(np.linalg.eigvals(m))))
 
 
@@ -149,7 +153,9 @@ def gains_from_dict(doc, source='<gains>', sha256=None, expected_ts_s=None, chec
     g.Q = file_m['Q'] * s[:, None] * s[None, :]
     g.R = file_m['R']
 
-    rho = spectral_radius(g.A - g.B.dot(g.K))
+    _check_bounds(g, f, ('A', 'B', 'K'))      # first: a product of a 1e308 entry is no radius
+    with np.errstate(all='ignore'):
+        rho = spectral_radius(g.A - g.B.dot(g.K))
     if rho >= 1.0:
         f.fail('K', 'does not stabilize A: spectral radius of A - B K is {:.6f} >= 1'.format(rho))
     if abs(rho - claimed_rho) > _RHO_TOL * max(1.0, rho):
@@ -251,7 +257,8 @@ def _kalman_law(g, k):
 
 
 def _kalman_stable(g, k):
-    rho = spectral_radius((np.eye(k.n) - k.L.dot(k.C)).dot(k.A))
+    with np.errstate(all='ignore'):     # an overflow is an inf, which the check refuses
+        rho = spectral_radius((np.eye(k.n) - k.L.dot(k.C)).dot(k.A))
     if rho >= 1.0:
         return 'gives an unstable filter: spectral radius of (I - L C) A is {:.6f} >= 1'.format(rho)
     return None
@@ -327,11 +334,17 @@ def check_physics(g, f):
     problem = _wheel_units(g)
     if problem:
         f.fail('state_units', problem)
+    _check_bounds(g, f, sorted(MATRIX_BOUNDS))
     for key, check in STRUCTURE_CHECKS:
         problem = check(g)
         if problem:
             f.fail(key, problem)
-    for key, (bound, why) in sorted(MATRIX_BOUNDS.items()):
+
+
+def _check_bounds(g, f, keys):
+    """MATRIX_BOUNDS of these keys (before any product of them: an entry of 1e308 overflows)."""
+    for key in keys:
+        bound, why = MATRIX_BOUNDS[key]
         value = _matrix(g, key)
         if value is None:
             continue

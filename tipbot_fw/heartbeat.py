@@ -17,6 +17,10 @@ machine instruction and never torn:
            when its signal handlers are installed, so a signal that reached it before then (when
            it was still ignored) is not lost
   POLLS    the supervisor's poll counter (for tests and diagnostics)
+  RAIL     the duty the controller's saturation limits each motor to (u_max_v at the battery's
+           last reading): a frozen controller whose held duties sit there was already fighting
+           a fall, and is stopped without waiting (tipbot_fw.supervisor); written outside the
+           ticks, whenever the battery reading changes
 
 The controller finds the page through the environment variable TIPBOT_SUPERVISOR
 ("<page fd>:<pipe fd>:<supervisor pid>"); the pipe's write end is only held open, so that the
@@ -28,7 +32,7 @@ import os
 
 ENV = 'TIPBOT_SUPERVISOR'
 PAGE_BYTES = 4096
-BEAT, STATE, STOPPED, MISSED_US, REQUEST, POLLS = range(6)
+BEAT, STATE, STOPPED, MISSED_US, REQUEST, POLLS, RAIL = range(7)
 IDLE, ARMED = 0, 1
 
 
@@ -75,6 +79,10 @@ class Heartbeat(object):
     def beat(self, k):
         if self.words is not None:
             self.words[BEAT] = k & 0xffffffff
+
+    def publish_rail(self, duty_limit):
+        if self.words is not None:
+            self.words[RAIL] = int(duty_limit)
 
     def stopped_by_supervisor(self):
         """-> the time BEAT had stood still (s) if the supervisor stopped the motors, else None."""

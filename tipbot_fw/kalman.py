@@ -34,6 +34,18 @@ polarity of each encoder, the gyro's sign and deg -> rad, volts per duty of the 
 duties per volt and polarity of the commands, the start pose (the constant column), the
 rounding constants. It is rebuilt when the battery reading changes
 (outside the tick). The duties come out as rounded integers; saturation clips them.
+
+Periods the loop missed (a stall: the process was not scheduled, a page came back from swap):
+the H-bridges held the last duties u_k all along, so the model predicts through them,
+
+    x^ <- A^m x^ + (A^(m-1) + ... + I) B u_k        (skip(m), before the next tick)
+
+and the next tick's update starts from where the robot is now, not where it was m periods ago.
+In xi the same (A's wheel-position columns are those of the identity: nothing depends on where
+the robot stands, so T m_k passes through unchanged). A^m is composed from the powers A^(2^j)
+made at construction, one matrix-vector product per set bit of m, in Python floats in a fixed
+order (IEEE-754: the same bits on any machine, so a replay still matches): about 1 ms on the
+brick for a stall of 60 periods, paid only after a stall.
 """
 import math
 import struct
@@ -77,6 +89,8 @@ _IN = struct.Struct('<7q')
 _HEAD = struct.Struct('<7q')          # duty_r..duty_3, xi_d_r, xi_d_l, xi_th1
 _DUTIES = struct.Struct('<4q')
 _ROW_FLOATS = struct.Struct('<3d')    # battery_v, flags, gyro_angle
+# skip(m) composes A^m from A^(2^j), j < SKIP_POWERS; a longer stall repeats the largest one
+SKIP_POWERS = 7
 
 
 def measurement_matrix(n, rw_m):
@@ -126,6 +140,41 @@ def wheel_m_per_count(rw_m, polarity, counts_per_rot):
     """Metres a wheel's count moves its d (R_w times the signed angle of a count): the one
     expression of it, so the brick, the replay and the telemetry decoder agree to the bit."""
     return rw_m * polarity * 2.0 * math.pi / counts_per_rot
+
+
+def _dot(a, b):
+    """sum a_i b_i left to right (not sum(): CPython 3.12 made that one compensated)."""
+    acc = 0.0
+    for ai, bi in zip(a, b):
+        acc += ai * bi
+    return acc
+
+
+def prediction_powers(a, b, count):
+    """[(A^(2^j), (A^(2^j - 1) + ... + I) B) for j < count], as lists of rows of Python floats
+    (a: n x n, b: n x p): predicting 2^j periods with the input held."""
+    p = [[float(v) for v in row] for row in a]
+    q = [[float(v) for v in row] for row in b]
+    out = []
+    for _ in range(count):
+        out.append((p, q))
+        # A^(2^(j+1)) = A^(2^j) A^(2^j); S_(j+1) B = A^(2^j) S_j B + S_j B
+        qt, pt = list(zip(*q)), list(zip(*p))
+        q = [[_dot(pr, qc) + q[r][c] for c, qc in enumerate(qt)] for r, pr in enumerate(p)]
+        p = [[_dot(pr, pc) for pc in pt] for pr in p]
+    return out
+
+
+def predict_held(powers, x, u, periods):
+    """x (list) predicted `periods` periods ahead with the input u (list) held, by the powers of
+    prediction_powers: one product per set bit of periods below the largest power, the largest
+    repeated for the rest (fixed order)."""
+    top = len(powers) - 1
+    steps = [j for j in range(top) if periods >> j & 1] + [top] * (periods >> top)
+    for j in steps:
+        p, q = powers[j]
+        x = [_dot(pr, x) + _dot(qr, u) for pr, qr in zip(p, q)]
+    return x
 
 
 def reference_step(kal, xf, u_applied, m):
@@ -215,6 +264,14 @@ class KalmanCore(object):
         self.prev = None
         self.bias0 = None
         self.x0 = None
+        # the model's prediction with the input held, for skip(): A's wheel-position columns
+        # are the identity's to the bit (checked), which is what lets xi pass through it
+        a = np.array(kal.A, dtype=float)
+        if not (a[:, 0:2] == np.eye(n)[:, 0:2]).all():
+            raise ValueError('kalman.A: the wheel positions must not act on the model (columns d_r, d_l '
+                             'of the identity)')
+        self._powers = prediction_powers(a, kal.B, SKIP_POWERS)
+        self._state_max = 2 ** fx.STATE_BITS
 
     def _joint_bounds(self, lim):
         """Counts from the zero of joints 2 and 3 within their limits (integer compares)."""
@@ -357,6 +414,23 @@ class KalmanCore(object):
         _ROW_FLOATS.pack_into(buf, offset + 16, self.battery_v, flags, gyro_angle)
         buf[offset + 40:offset + 40 + self._row_ints] = self.v_bytes[0:self._row_ints]
         return [0, 0, 0, 0], flags & STOP_FLAGS
+
+    def skip(self, periods):
+        """The loop missed `periods` periods after this tick, the last duties held: predict the
+        carried state through them (module docstring). Outside the tick; replayed from the
+        log's flags (logfile.SKIP_SHIFT)."""
+        if periods <= 0:
+            return
+        n = self.n
+        v = self.v
+        lsb = self.state_lsb
+        volts = self.battery_v / 100.0
+        u = [self.polarity[i] * volts * int(v[i]) for i in range(N_U)]
+        x = predict_held(self._powers, [int(v[N_U + i]) * float(lsb[i]) for i in range(n)], u, periods)
+        top = self._state_max
+        # within the fixed-point range the product is built for (a robot that far off has
+        # fallen: the next tick's fall check stops it)
+        v[N_U:N_U + n] = [max(-top, min(top, fx.round_half_up(x[i], self.q[i]))) for i in range(n)]
 
     # -- inspection, replay
     def estimate(self):

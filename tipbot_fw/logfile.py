@@ -90,6 +90,10 @@ FLAG_BITS = {
     'joint_limit': 64,  # |th2| or |th3| beyond its limit: motors stopped in this tick
 }
 SATURATION_BITS = 1 | 2 | 4 | 8
+# The bits from SKIP_SHIFT on: the whole periods the loop missed after this tick (a stall), which
+# the core predicted through (its skip(); the replay does the same)
+SKIP_SHIFT = 7
+SKIP_MAX = (1 << 20) - 1
 
 
 def to_file_layout(mem_rows, polarity, t0=0.0):

@@ -48,6 +48,7 @@ import os
 from tipbot_fw import logfile
 from tipbot_fw.heartbeat import NOT_SUPERVISED
 from tipbot_fw.plausibility import GYRO_MAX_DPS, EncoderBound, check_battery
+from tipbot_fw.config import MAX_STALL_S
 from tipbot_fw.safety import DeviceFailure, FallDetected, JointLimit, OverrunLimit, Terminated
 
 # What a tick must leave before the next release for the work between ticks (a chunk of log rows
@@ -61,6 +62,7 @@ SLACK_FRACTION = 0.3
 SIDE_WAIT_S = 0.05
 
 OVERRUN = logfile.FLAG_BITS['overrun']
+SKIP_SHIFT, SKIP_MAX = logfile.SKIP_SHIFT, logfile.SKIP_MAX
 FALL = logfile.FLAG_BITS['fall']
 
 
@@ -108,6 +110,16 @@ def request_realtime(priority):
     return info, restore
 
 
+def scheduling_line(info):
+    """What the start says of the scheduling request_realtime() got."""
+    if info['granted']:
+        return 'scheduling: SCHED_FIFO priority {}'.format(info['requested_priority'])
+    if info['requested_priority'] <= 0:
+        return 'scheduling: normal (no real-time priority asked for: realtime_priority 0)'
+    return ('scheduling: normal, SCHED_FIFO priority {} refused ({}): run ./install.sh --rtprio once on the '
+            'brick (or start it as tipbot.service)'.format(info['requested_priority'], info['error']))
+
+
 class ControlLoop(object):
     """Runs `core` on `devices` every period_s on `clock`, rows into the LogBuffer `log`.
 
@@ -116,12 +128,13 @@ class ControlLoop(object):
     SCHED_FIFO priority to ask for during the run (0: don't); heartbeat: the supervisor's page
     (tipbot_fw.heartbeat); encoder_bound: a plausibility.EncoderBound (None: only the gyro's
     bound is checked); side: a side task (tipbot_fw.slack) or None, settable until run();
-    overrun_window_s, max_lost_s: the overrun stop (the module's docstring).
+    overrun_window_s, max_lost_s, max_stall_s: the overrun stop (the module's docstring);
+    on_scheduling: called with one line saying which scheduling the run got, before the first tick.
     """
 
     def __init__(self, devices, core, clock, log, period_s, battery_v, battery_period_s=1.0,
-                 overrun_window_s=0.3, max_lost_s=0.04, duration_s=None, realtime_priority=0, heartbeat=NOT_SUPERVISED,
-                 encoder_bound=None, side=None):
+                 overrun_window_s=0.3, max_lost_s=0.04, max_stall_s=MAX_STALL_S, duration_s=None, realtime_priority=0, heartbeat=NOT_SUPERVISED,
+                 encoder_bound=None, side=None, on_scheduling=None):
         self.devices = devices
         self.core = core
         self.clock = clock
@@ -131,17 +144,21 @@ class ControlLoop(object):
         self.battery_every = max(1, int(round(battery_period_s / period_s)))
         self.overrun_window_s = overrun_window_s
         self.max_lost_s = max_lost_s
+        self.max_stall_s = max_stall_s
         self.n_ticks = None if duration_s is None else max(1, int(round(duration_s / period_s)))
         self.realtime_priority = realtime_priority
         self.heartbeat = heartbeat
         self.encoder_bound = encoder_bound
         self.side = side
+        self.on_scheduling = on_scheduling
         self.stats = LoopStats()
 
     def run(self):
         """Run until duration_s is reached (returns LoopStats) or an exception stops it."""
         stats = self.stats
         stats.realtime, restore_sched = request_realtime(self.realtime_priority)
+        if self.on_scheduling is not None:
+            self.on_scheduling(scheduling_line(stats.realtime))
         gc_was_enabled = gc.isenabled()
         gc.collect()
         gc.disable()   # no collector pause inside a tick; the ticks create no reference cycles
@@ -166,11 +183,17 @@ class ControlLoop(object):
         raise JointLimit('joint limit: th2 = {:.3f} rad, th3 = {:.3f} rad (limits {}, {}) at tick {}'.format(
             th2, th3, lim2, lim3, k))
 
-    def _behind(self, k, lost_s, late_s):
+    def _behind(self, k, lost_s, late_s, longest_s):
         skipped = int(round((lost_s - late_s) / self.period_s)) + int(late_s / self.period_s)
-        raise OverrunLimit('the loop is behind: {:.1f} ms lost within {} s (limits.max_lost_s = {} s within '
-                           'limits.overrun_window_s), {} periods skipped, tick {} ended {:.1f} ms late'.format(
-                               lost_s * 1e3, self.overrun_window_s, self.max_lost_s, skipped, k, late_s * 1e3))
+        raise OverrunLimit('the loop is behind: {:.1f} ms lost within {} s besides its longest hold of {:.1f} ms '
+                           '(limits.max_lost_s = {} s within limits.overrun_window_s), {} periods skipped, tick {} '
+                           'ended {:.1f} ms late'.format((lost_s - longest_s) * 1e3, self.overrun_window_s,
+                                                         longest_s * 1e3, self.max_lost_s, skipped, k, late_s * 1e3))
+
+    def _stalled(self, k, late_s, missed):
+        raise OverrunLimit('a stall of {:.1f} ms after tick {} ({} periods skipped), longer than limits.max_stall_s = '
+                           '{} s: the longest the robot is designed to ride out'.format(
+                               late_s * 1e3, k, missed, self.max_stall_s))
 
     def _run(self, stats):
         # Locals: attribute and global lookups cost real time on the brick.
@@ -191,6 +214,7 @@ class ControlLoop(object):
         battery_every = self.battery_every
         window = self.overrun_window_s
         max_lost = self.max_lost_s
+        max_stall = self.max_stall_s
         skips = collections.deque()     # (release, seconds) of the periods skipped within the window
         hbt = self.heartbeat
         beat = hbt.words if hbt.words is not None else [0] * 8   # the same store either way
@@ -214,6 +238,7 @@ class ControlLoop(object):
         side_wait = max(1, int(round(SIDE_WAIT_S / period)))
         stats.battery_v = check_battery(self.battery_v)
         core.set_battery(self.battery_v)
+        hbt.publish_rail(core.dlim)
         consecutive = 0
         step = core.start
         k = 0       # ticks whose row is stored
@@ -252,25 +277,30 @@ class ControlLoop(object):
                 release += period
                 late = now() - release
                 if late > 0.0:
-                    log.mem[(k - 1) % cap, flags_col] += OVERRUN
+                    missed = int(late / period)
+                    log.mem[(k - 1) % cap, flags_col] += OVERRUN + (min(missed, SKIP_MAX) << SKIP_SHIFT)
                     stats.overruns += 1
+                    stats.skipped_periods += missed
                     consecutive += 1
                     if consecutive > stats.max_consecutive_overruns:
                         stats.max_consecutive_overruns = consecutive
                     while skips and skips[0][0] <= release - window:
                         skips.popleft()
-                    lost = late
+                    lost = longest = late
                     for _, skipped_s in skips:
                         lost += skipped_s
-                    if lost > stats.max_lost_s:
-                        stats.max_lost_s = lost
-                    if lost > max_lost:
-                        self._behind(k - 1, lost, late)
-                    missed = int(late / period)
+                        if skipped_s > longest:
+                            longest = skipped_s
+                    if late > max_stall:
+                        self._stalled(k - 1, late, missed)
+                    if lost - longest > stats.max_lost_s:
+                        stats.max_lost_s = lost - longest
+                    if lost - longest > max_lost:
+                        self._behind(k - 1, lost, late, longest)
                     if missed:
                         release += missed * period
-                        stats.skipped_periods += missed
                         skips.append((release, missed * period))
+                        core.skip(missed)       # the model through the periods missed, duties held
                 else:
                     consecutive = 0
                 if k >= due:        # work between ticks: one comparison a tick until some is due
@@ -287,6 +317,7 @@ class ControlLoop(object):
                         stats.battery_v = bv
                         if bv != core.battery_v:
                             core.set_battery(bv)
+                            hbt.publish_rail(core.dlim)
                         if not hbt.supervisor_alive():
                             raise Terminated('the supervisor (pid {}) is gone: the controller stopped the motors '
                                              'itself'.format(hbt.supervisor_pid), 'supervisor_gone')

@@ -45,7 +45,7 @@ def replay(header, rows, gains, check_gains=True):
     layout = core.rows
     out = np.array(rows, dtype=float)
     one = logfile.LogBuffer(1, layout)
-    overrun = logfile.FLAG_BITS['overrun']
+    loop_bits = logfile.FLAG_BITS['overrun'] | (logfile.SKIP_MAX << logfile.SKIP_SHIFT)
     flags = layout.col('flags')
     readings = _reader(layout)
     starts = dict(logfile.segment_rows(header, len(rows)))
@@ -53,16 +53,20 @@ def replay(header, rows, gains, check_gains=True):
         enc, gyro, battery_v = readings(rows[i])
         if battery_v != core.battery_v:
             core.set_battery(battery_v)
+        loops = int(rows[i, flags]) & loop_bits
         if i not in starts:
             core.step(enc, gyro, one.data, 0)
         elif starts[i] == 0:
             core.start(enc, gyro, one.data, 0)
         else:
             core.restore(rows[i], header['encoder_offsets'])
+            core.skip(loops >> logfile.SKIP_SHIFT)
             continue
         out[i, 2:] = layout.to_file(one.mem)[0, 2:]
-        # the overrun flag is the loop's, not the core's
-        out[i, flags] = int(out[i, flags]) | (int(rows[i, flags]) & overrun)
+        # the overrun flag and the periods skipped after the tick are the loop's, not the core's;
+        # the core predicted through those periods before the next tick, as on the robot
+        out[i, flags] = int(out[i, flags]) | loops
+        core.skip(loops >> logfile.SKIP_SHIFT)
     return out
 
 

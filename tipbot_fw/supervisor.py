@@ -9,16 +9,22 @@ motor of the configured ports itself, directly through sysfs (``duty_cycle_sp`` 
   controller holds the write end of a pipe, so its end is an end of file the supervisor's
   ``select`` sees at once;
 * the controller's heartbeat stands still while it is armed (tipbot_fw.heartbeat: the control
-  loop stores its tick index in a shared page every tick, no system call) for longer than
-  ``--timeout-ms`` (25 ms, 5 periods): a stalled process (SIGSTOP, a livelock, a blocked read).
-  The supervisor then stops the motors, marks the page and sends SIGTERM and SIGCONT: the
+  loop stores its tick index in a shared page every tick, no system call) for longer than the
+  configuration's ``limits.max_stall_s`` (150 ms): the longest single stall the robot is
+  designed to ride out (docs/architecture.md), or for longer than ``--timeout-ms`` (25 ms, 5 periods)
+  with a held duty at the saturation the controller published in the page (a controller that
+  froze while fighting a fall, or a runaway). A frozen controller's H-bridges keep its last
+  duties: a delayed version of the law, which a balancing robot rides out for a while, where
+  stopping its motors would be a fall; the controller, back from the stall, predicts through
+  the periods it missed (tipbot_fw.kalman: skip). Past that hold the supervisor stops the
+  motors, marks the page and sends SIGTERM and SIGCONT: the
   controller, if it ever runs again, finds its motors in ``stop`` (a motor whose command is
   ``stop`` ignores ``duty_cycle_sp``, the only attribute the controller writes during a run),
   stops the run with the reason ``watchdog`` (exit 8) and writes its log. A controller that has
   not ended ``--grace-s`` after that is killed.
 
-It checks every ``--poll-ms`` (10 ms), so a stall is acted on within timeout + poll + the stop
-writes: under 40 ms on the brick's budget of 0.45 ms per sysfs write, within the 50 ms asked.
+It checks every ``--poll-ms`` (10 ms), so a death or a stall's end of hold is acted on within a
+poll and the stop writes (0.45 ms each on the brick): within 15 ms, inside the 50 ms asked.
 With ``realtime_priority`` in the configuration it runs SCHED_FIFO one level above the
 controller, so a controller that spins at its own real-time priority cannot starve it.
 
@@ -29,6 +35,12 @@ then look at the request the supervisor left in the page, so a Ctrl-C during the
 start-up is neither lost nor a traceback. If the supervisor dies, the kernel sends the
 controller SIGTERM (prctl PR_SET_PDEATHSIG; and the controller checks its parent about once a
 second): it stops its motors itself.
+
+A signal to the whole process group (SIGKILL or SIGSTOP of both processes at once, as a shell's
+kill -- -PGID or Ctrl-Z does) would leave no one to stop the motors: so the supervisor forks a
+guard into a session of its own (start_guard), which watches the same pipe and page and stops
+the motors when the controller ends, or when it stands still past its hold while the
+supervisor stands still too.
 
 Exit status: the controller's (``python3 -m tipbot_fw --help``); 128 + N when it ended on a
 signal N this supervisor passed on to it (one that came while its first was ending it); or 9
@@ -72,9 +84,9 @@ GRACE_S = 5.0
 PACKAGE_PARENT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
-def say(msg):
+def say(msg, who='supervisor'):
     try:
-        sys.stderr.write('tipbot: supervisor: {}\n'.format(msg))
+        sys.stderr.write('tipbot: {}: {}\n'.format(who, msg))
         sys.stderr.flush()
     except (OSError, ValueError):     # a vanished console must not stop the supervisor
         pass
@@ -97,7 +109,8 @@ def motor_ports(config):
 class MotorStopper(object):
     """duty_cycle_sp 0 and command stop on the tacho motors of ``ports``, through file
     descriptors opened at start (a stop is then 2 writes per motor, no lookup); a motor whose
-    descriptors fail is looked up again and retried once."""
+    descriptors fail is looked up again and retried once. held_duties() reads what the motors
+    are driven at (only while the controller stands still)."""
 
     def __init__(self, sysfs_root, ports):
         self.root = sysfs_root
@@ -132,7 +145,7 @@ class MotorStopper(object):
                 self.missing.append(port)
                 continue
             try:
-                self.fds[port] = (os.open(os.path.join(dirs[port], 'duty_cycle_sp'), os.O_WRONLY),
+                self.fds[port] = (os.open(os.path.join(dirs[port], 'duty_cycle_sp'), os.O_RDWR),
                                   os.open(os.path.join(dirs[port], 'command'), os.O_WRONLY))
             except OSError:
                 self.missing.append(port)
@@ -156,6 +169,16 @@ class MotorStopper(object):
                 failed.append('port {}: {}'.format(port, e))
         return failed
 
+    def held_duties(self):
+        """The duties the motors hold (percent; a motor that cannot be read is left out)."""
+        out = []
+        for port, (duty, _) in sorted(self.fds.items()):
+            try:
+                out.append(int(os.pread(duty, 16, 0).split(b'\n', 1)[0]))
+            except (OSError, ValueError):
+                pass
+        return out
+
     def stop(self):
         """Stop them. Never raises. -> the problems, as strings (none: all stopped)."""
         failed = self._write()
@@ -168,8 +191,9 @@ class MotorStopper(object):
 class Watch(object):
     """The supervisor's view of one controller: its pipe, its page, its stall timer."""
 
-    def __init__(self, words, pipe_r, timeout_s=TIMEOUT_S, clock=time.monotonic):
+    def __init__(self, words, pipe_r, timeout_s=TIMEOUT_S, clock=time.monotonic, count_polls=True):
         self.words = words
+        self.count_polls = count_polls      # the supervisor's polls, which the guard watches
         self.pipe_r = pipe_r
         self.timeout_s = timeout_s
         self.clock = clock
@@ -185,7 +209,8 @@ class Watch(object):
         if ready:
             return 'ended', 0.0
         words = self.words
-        words[hb.POLLS] = (words[hb.POLLS] + 1) & 0xffffffff
+        if self.count_polls:
+            words[hb.POLLS] = (words[hb.POLLS] + 1) & 0xffffffff
         t = self.clock()
         beat = words[hb.BEAT]
         armed = words[hb.STATE] == hb.ARMED
@@ -239,6 +264,7 @@ def supervise(argv, timeout_s=TIMEOUT_S, poll_s=POLL_S, grace_s=GRACE_S, python=
         return EXIT_INVALID
     sysfs_root = _option(argv, '--sysfs-root') or default_sysfs_root()
     stopper = MotorStopper(sysfs_root, motor_ports(config))
+    hold_s = config['limits']['max_stall_s']
     page_fd, page, words = hb.create_page()
     child['words'] = words
     pipe_r, pipe_w = os.pipe()
@@ -260,6 +286,7 @@ def supervise(argv, timeout_s=TIMEOUT_S, poll_s=POLL_S, grace_s=GRACE_S, python=
     if received:
         on_signal(received[-1], None)
     _realtime(config['realtime_priority'])
+    guard_pid = start_guard(words, pipe_r, stopper, hold_s, timeout_s, poll_s, proc.pid)
     watch = Watch(words, pipe_r, timeout_s)
     kill_at = None
     while True:
@@ -277,6 +304,7 @@ def supervise(argv, timeout_s=TIMEOUT_S, poll_s=POLL_S, grace_s=GRACE_S, python=
             problems = stopper.stop()
             stop_ms = (time.monotonic() - t_end) * 1e3
             code = proc.wait()
+            _reap(guard_pid)
             _report(problems, 'after the controller ended')
             if code < 0 and -code in received:
                 # the signal passed on, delivered while the controller had no handler for it: at
@@ -293,17 +321,122 @@ def supervise(argv, timeout_s=TIMEOUT_S, poll_s=POLL_S, grace_s=GRACE_S, python=
                 return EXIT_CONTROLLER_DIED
             return code
         if kind == 'stalled' and kill_at is None:
+            if words[hb.STOPPED]:
+                # the guard stopped it while this process stood still too (a SIGSTOP of both)
+                say('the guard stopped the motors of the stalled controller')
+                kill_at = time.monotonic() + grace_s
+                continue
+            why = _past_hold(stood_s, hold_s, stopper, words[hb.RAIL])
+            if why is None:
+                continue        # a frozen controller's last duties: held while the robot can be saved
             problems = stopper.stop()
             words[hb.MISSED_US] = min(int(stood_s * 1e6), 0xffffffff)
             words[hb.STOPPED] = 1
             _report(problems, 'of a stalled controller')
-            say('the controller missed its heartbeat for {:.0f} ms: motors stopped; stopping it'.format(stood_s * 1e3))
+            say('the controller missed its heartbeat for {:.0f} ms{}: motors stopped; stopping it'.format(
+                stood_s * 1e3, why))
             for s in (signal.SIGTERM, signal.SIGCONT):
                 try:
                     os.kill(proc.pid, s)
                 except OSError:
                     pass
             kill_at = time.monotonic() + grace_s
+
+
+def _past_hold(stood_s, hold_s, stopper, rail):
+    """Why a controller whose beat stood still stood_s must lose its motors now, or None while
+    its held duties may still save the robot: beyond hold_s (limits.max_stall_s), or a held
+    duty at the controller's saturation limit `rail` (0: not published yet, the 100 % of the
+    driver)."""
+    if stood_s > hold_s:
+        return ', longer than limits.max_stall_s = {} s'.format(hold_s)
+    held = stopper.held_duties()
+    rail = rail or 100
+    if any(abs(d) >= rail for d in held):
+        return ' with a motor held at its saturation ({} %)'.format(rail)
+    return None
+
+
+def start_guard(words, pipe_r, stopper, hold_s, timeout_s, poll_s, controller_pid):
+    """Fork the guard: a copy of this process (its pages shared until written: a few hundred kB of
+    its own) in a session of its own, so that no signal to the run's process group (a SIGKILL or a
+    SIGSTOP of the supervisor and the controller at once, Ctrl-Z) reaches it. It watches the same
+    pipe and page: the controller's end stops the motors at once, as here; a frozen controller
+    past its hold has its motors stopped, but only while this supervisor stands still too (its
+    poll counter does not move for two polls: otherwise this process acts, and only one of them
+    signals the controller). It ends with the controller (the pipe's end of file). -> its pid, or
+    None if it could not be started (the run goes on with this supervisor alone, said)."""
+    try:
+        pid = os.fork()
+    except OSError as e:
+        say('no guard outside the process group ({}): a signal to the whole group is not covered'.format(e))
+        return None
+    if pid:
+        return pid
+    code = 0
+    try:
+        os.setsid()
+        for s in (signal.SIGINT, signal.SIGHUP, signal.SIGQUIT, signal.SIGTSTP):
+            signal.signal(s, signal.SIG_IGN)
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+        guard(words, pipe_r, stopper, hold_s, timeout_s, poll_s, controller_pid)
+    except BaseException:    # never a traceback from a second copy, never its exit status
+        code = 1
+    finally:
+        os._exit(code)
+
+
+def guard(words, pipe_r, stopper, hold_s, timeout_s, poll_s, controller_pid, clock=time.monotonic):
+    """The guard's loop (start_guard); returns when the controller has ended and its motors are
+    stopped."""
+    watch = Watch(words, pipe_r, timeout_s, clock=clock, count_polls=False)
+    polls, polls_seen = words[hb.POLLS], clock()
+    while True:
+        event = watch.poll(poll_s)
+        if event is None:
+            continue
+        kind, stood_s = event
+        if kind == 'ended':
+            problems = stopper.stop()
+            if words[hb.STATE] == hb.ARMED and not words[hb.STOPPED]:
+                _report(problems, 'after the controller and the supervisor ended', who='guard')
+            return
+        t = clock()
+        if words[hb.POLLS] != polls:
+            polls, polls_seen = words[hb.POLLS], t
+            continue                        # the supervisor is there: its call
+        if words[hb.STOPPED] or t - polls_seen < 2 * poll_s:
+            continue
+        why = _past_hold(stood_s, hold_s, stopper, words[hb.RAIL])
+        if why is None:
+            continue
+        problems = stopper.stop()
+        words[hb.MISSED_US] = min(int(stood_s * 1e6), 0xffffffff)
+        words[hb.STOPPED] = 1
+        _report(problems, 'of a stalled controller', who='guard')
+        say('the controller and the supervisor stood still, the controller for {:.0f} ms{}: motors stopped'.format(
+            stood_s * 1e3, why), who='guard')
+        for s in (signal.SIGTERM, signal.SIGCONT):
+            try:
+                os.kill(controller_pid, s)
+            except OSError:
+                pass
+
+
+def _reap(pid, wait_s=0.2):
+    """Collect the guard (it ends within a poll of the controller); one that does not (stopped
+    itself) is left to init rather than waited for."""
+    if pid is None:
+        return
+    t_end = time.monotonic() + wait_s
+    while True:
+        try:
+            done, _ = os.waitpid(pid, os.WNOHANG)
+        except OSError:
+            return
+        if done or time.monotonic() > t_end:
+            return
+        time.sleep(0.005)
 
 
 def show_stop(argv, sysfs_root, reason, code):
@@ -323,9 +456,9 @@ def show_stop(argv, sysfs_root, reason, code):
         say('could not show the stop on the brick: {!r}'.format(e))
 
 
-def _report(problems, when):
+def _report(problems, when, who='supervisor'):
     for p in problems:
-        say('stopping the motors {}: {}'.format(when, p))
+        say('stopping the motors {}: {}'.format(when, p), who)
 
 
 def signal_name(signum):

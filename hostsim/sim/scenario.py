@@ -123,6 +123,9 @@ class Brick:
     late_wake_s: tuple = (0.0, 0.0)        # ... by U(lo, hi)
     stall_rate_hz: float = 0.0             # multi-tick stalls (SD card, kernel threads) per second ...
     stall_s: tuple = (0.0, 0.0)            # ... lasting U(lo, hi)
+    single_stall_s: float = 0.0            # one stall this long (0: none) ...
+    single_stall_at_s: float = 10.0        # ... at the first wake-up this long after the simulation starts (the
+                                           # calibration before the release takes ~1.1 s), plus U(0, 10 ms)
     # encoders (hostsim.world.sensors.EncoderModel)
     encoder_update_s: float = 0.0          # position updated this often (0: at the read)
     encoder_truncate: bool = False         # whole edges passed instead of the nearest count
@@ -149,7 +152,7 @@ class Brick:
         """Accesses and the scheduler cost time (hostsim.world.brick_timing)."""
         return (self.tacho_access_s[1] > 0 or self.sensor_access_s[1] > 0 or self.compute_s[1] > 0
                 or (self.late_wake_probability > 0 and self.late_wake_s[1] > 0)
-                or (self.stall_rate_hz > 0 and self.stall_s[1] > 0))
+                or (self.stall_rate_hz > 0 and self.stall_s[1] > 0) or self.single_stall_s > 0)
 
     @property
     def needs_sysfs(self):
@@ -187,6 +190,8 @@ BRICK_BOUNDS = (
     ("late_wake_s", "range", 0.05),
     ("stall_rate_hz", "value", 10),
     ("stall_s", "range", 1),                     # a second without control is a fall anyway
+    ("single_stall_s", "value", 1),
+    ("single_stall_at_s", "value", 3600),
     ("encoder_update_s", "value", 0.05),
     ("encoder_truncate", "flag", None),
     ("friction_deadband_pct", "motors", 100),    # the duty at 8 V that starts a free motor

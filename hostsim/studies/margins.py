@@ -18,7 +18,11 @@ as the effect grows. Effects (MARGINS):
   Medium's 2.5 times that, as 10 to 4);
 - gyro drift (deg/s^2): a bias ramp, each sign (the smaller margin counts);
 - push (N s): a horizontal impulse at link 3's centre of mass at t = 10 s, each direction;
-- gyro freeze (ms): freezes of that length at exponential intervals of 5 s mean.
+- gyro freeze (ms): freezes of that length at exponential intervals of 5 s mean;
+- single stall (ms): one stall of the whole brick that long at t = 10 s (at a random phase of
+  the period), the motors held at their last duties as the H-bridges hold them; the firmware's
+  own limit on it (limits.max_stall_s, which this row is what to choose it from) lifted to its
+  bound for the search.
 
 **Ablation.** The realistic brick itself (every effect on), as the firmware is (it stops when
 more than ``limits.max_lost_s`` is lost to late ticks within ``limits.overrun_window_s``), and
@@ -36,7 +40,7 @@ import time
 import numpy as np
 
 from hostsim.paths import REPO_ROOT, out_dir
-from tipbot_fw.config import MAX_LOST_S
+from tipbot_fw.config import MAX_LOST_S, MAX_STALL_BOUNDS_S
 
 DEFAULT_GAINS = ("gains/paper.json", "gains/physical.json")
 BASE_SCENARIO = "brick_realistic"
@@ -68,6 +72,7 @@ MARGINS = (
     Margin("gyro_drift", "gyro drift", "deg/s^2", "0.002 (an assumption)", 0.002, 0.1, 0.001, (1, -1)),
     Margin("push", "push on link 3", "N s", "-", None, 2.0, 0.01, (1, -1)),
     Margin("gyro_freeze", "gyro freeze", "ms", "42, one in 20 s", 42.0, 1000.0, 10.0),
+    Margin("single_stall", "single stall", "ms", "10-30, one in 20 s", 30.0, 500.0, 5.0),
 )
 COARSE = 4.0      # make sim: tolerances x this
 # The firmware's loosest overrun stop (the largest lost time, in the shortest window that allows
@@ -108,6 +113,10 @@ def margin_scenario(base, key, value, ts_s):
         return dataclasses.replace(base, brick=Brick(gyro_bias_ramp_dps_s=value))
     if key == "push":
         return dataclasses.replace(base, pushes=(Push(PUSH_AT_S, link=3, impulse_n_s=value),))
+    if key == "single_stall":
+        limits = dict(base.firmware_config.get("limits", {}), max_stall_s=MAX_STALL_BOUNDS_S[1])
+        return dataclasses.replace(base, brick=Brick(single_stall_s=value / 1000.0, single_stall_at_s=PUSH_AT_S),
+                                   firmware_config=dict(base.firmware_config, limits=limits))
     if key == "gyro_freeze":
         return dataclasses.replace(base, brick=Brick(gyro_freeze_s=value / 1000.0, gyro_freeze_interval_s=FREEZE_INTERVAL_S))
     raise KeyError(key)
@@ -125,8 +134,10 @@ def _gains(path):
     return gains_document(path, False)
 
 
-def _run(sc, gains_path, sysfs=False, keep_rows=False):
+def _run(sc, gains_path, sysfs=None, keep_rows=False):
+    """sysfs: through the fake EV3 tree (None: when the brick's effects need it, e.g. a stall)."""
     from hostsim.sim.fil import run_firmware
+    sysfs = sc.brick.needs_sysfs if sysfs is None else sysfs
     return run_firmware(sc, gains_doc=_gains(gains_path), sysfs=sysfs, keep_rows=keep_rows)
 
 

@@ -66,6 +66,11 @@ class AccessTimes(object):
         self.stall_range = brick.stall_s
         self.next_stall = self._exponential(0.0)
         self.stalls = []           # (start, duration) of each stall so far
+        # the one stall of a given length (margins' single-stall row), at a random phase of the
+        # loop's period: 0-10 ms after its time (drawn after the first stall, whatever its use)
+        self.once = None
+        if brick.single_stall_s > 0:
+            self.once = (brick.single_stall_at_s + 0.01 * self.u(), brick.single_stall_s)
 
     def _between(self, lo_hi):
         lo, hi = lo_hi
@@ -89,6 +94,11 @@ class AccessTimes(object):
         late = 0.0
         if self.late_p > 0 and self.u() < self.late_p:
             late = self._between(self.late_range)
+        if self.once is not None and self.once[0] <= t_wake + late:
+            start, d = self.once
+            self.once = None
+            self.stalls.append((start, d))
+            late = max(late, start + d - t_wake)
         while self.next_stall <= t_wake + late:
             d = self._between(self.stall_range)
             self.stalls.append((self.next_stall, d))
