@@ -54,7 +54,7 @@ from hostsim.world.brick_timing import AccessTimes, BrickClock, TimedIO
 from hostsim.world.drivetrain import DrivetrainPlant
 from hostsim.world.gyro import GyroModel
 from hostsim.world.plant import Plant, apply_push
-from hostsim.sim.scenario import disturbance_at, firmware_overrides, merged_fields
+from hostsim.sim.scenario import disturbance_at, firmware_overrides, merged_fields, scenario_load
 from hostsim.world.sensors import BatteryModel, EncoderModel, SensorModel
 from tipbot_fw import config as fw_config
 from tipbot_fw import logfile
@@ -252,6 +252,7 @@ def run_firmware(sc, gains_path=None, gains_doc=None, sysfs=True, log_path=None,
                                 backlash_rad=[math.radians(d) for d in brick.backlash_deg])
     else:
         plant = Plant(model, x0_model, dt_s=PLANT_DT_S, method=sc.plant_method)
+    plant.load = scenario_load(sc, model, x0_model)
     if gains_doc is not None:
         gains = gains_from_dict(gains_doc, "<%s gains for %s>" % (gains_doc["model_variant"], sc.name))
     else:

@@ -17,7 +17,7 @@ from hostsim.model.equations import RobotModel, state_scale_to_si
 from hostsim.sim.governor import ReferenceGovernor
 from hostsim.sim.result import RunResult
 from hostsim.world.plant import Plant
-from hostsim.sim.scenario import disturbance_at
+from hostsim.sim.scenario import disturbance_at, scenario_load
 
 PLANT_DT_S = 0.001
 
@@ -156,6 +156,7 @@ def simulate_nonlinear(g, sc, k_pd=None, params=None, fall_rad=np.pi / 2, ideal=
     model = RobotModel(sc.plant_variant, scaled_params(sc.param_scale, params))
     to_si = np.diag(state_scale_to_si(model.variant))
     plant = Plant(model, np.array(sc.x0_si) / to_si, dt_s=PLANT_DT_S, method=sc.plant_method)
+    plant.load = scenario_load(sc, model, plant.x)
     pushes = sorted((p.t_s, p.th1_dot_rad_s) for p in sc.pushes)
 
     def step(x, u, t):

@@ -33,6 +33,7 @@ pose unless overridden, then these fields) is checked when the scenario is read,
 configuration's own bounds (tipbot_fw.config), and named ``firmware_config.<field>``.
 """
 import dataclasses
+import math
 import os
 from typing import Optional
 
@@ -77,6 +78,8 @@ DEFAULTS = {
     "settle_band_rad": 0.02,          # |th1| band for the settling time
     "expect": {},                     # optional pass criteria checked by `hostsim run`
     "reference_governor": False,      # linear/nonlinear: the law follows hostsim.sim.governor's reference
+    "payload": None,                  # a point mass on link 3 (Payload; nonlinear, firmware)
+    "slope": None,                    # the floor's slope (Slope; nonlinear, firmware)
 }
 
 
@@ -108,6 +111,35 @@ class Sensors:
 
 
 SENSOR_DEFAULTS = dataclasses.asdict(Sensors())
+
+
+@dataclasses.dataclass(frozen=True)
+class Payload:
+    """A point mass on link 3 (hostsim.world.load): mass_kg at distance_m along link 3 from
+    its joint, put on at t_on_s and taken off at t_off_s (None: stays on)."""
+    mass_kg: float
+    distance_m: float
+    t_on_s: float = 0.0
+    t_off_s: Optional[float] = None
+
+
+@dataclasses.dataclass(frozen=True)
+class Slope:
+    """The floor rises by angle_deg in the forward direction (negative: falls), between
+    ramp_start_m and ramp_end_m along the floor from where the axle starts (flat before and
+    after), or everywhere when neither is given (hostsim.world.load)."""
+    angle_deg: float
+    ramp_start_m: Optional[float] = None
+    ramp_end_m: Optional[float] = None
+
+
+# Bounds: a kilogram on link 3 is most of the robot's own 1.3 kg (the Medium motor holds
+# about 0.12 N m stalled: 1 kg at 10 cm is 1 N m); link 3 is 2 l3 = 10 cm long (params);
+# 30 degrees is beyond any ramp a 3.4 cm wheel climbs at 7.6 V (margins search below it).
+MAX_PAYLOAD_KG = 1.0
+MAX_PAYLOAD_DISTANCE_M = 0.1
+MAX_SLOPE_DEG = 30.0
+MAX_RAMP_POSITION_M = 10.0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -237,6 +269,8 @@ class Scenario:
     settle_band_rad: float
     expect: dict
     reference_governor: bool
+    payload: Optional[Payload] = None
+    slope: Optional[Slope] = None
 # expect: {"<mode>/<controller>": {key: bound}}; every bound is an upper limit except upright.
 EXPECT_KEYS = ("max_abs_th1_rad", "max_abs_th2_rad", "max_abs_th3_rad", "settle_time_s", "max_abs_u_v",
                "final_abs_d_m", "final_est_error", "upright")
@@ -357,6 +391,8 @@ def parse_scenario(doc, src="<scenario>"):
     f.check("seed", sc["seed"], fields.number(lo=0, hi=2 ** 32 - 1, lo_open=False, integer=True))
     f.check("expect", sc["expect"], fields.obj)
     f.check("reference_governor", sc["reference_governor"], fields.boolean)
+    sc["payload"] = _payload(f, sc["payload"], sc["modes"])
+    sc["slope"] = _slope(f, sc["slope"], sc["modes"])
     runs = {"%s/%s" % (m, c) for m in sc["modes"] for c in sc["controllers"]}
     for label, bounds in sc["expect"].items():
         name = "expect.%s" % label
@@ -401,6 +437,51 @@ def _brick(f, doc):
             if kind == "range" and out[k][0] > out[k][1]:
                 f.fail(name, "must be [lo, hi] with 0 <= lo <= hi, got %r" % (v,))
     return Brick(**out)
+
+
+def _optional(f, name, doc, keys, required):
+    if not isinstance(doc, dict) or not set(required) <= set(doc) or not set(doc) <= set(keys):
+        f.fail(name, "must be an object with %s (optional: %s), got %r"
+               % (", ".join(required), ", ".join(k for k in keys if k not in required) or "none", doc))
+
+
+def _payload(f, doc, modes):
+    """The ``payload`` object -> Payload or None."""
+    if doc is None:
+        return None
+    _optional(f, "payload", doc, ("mass_kg", "distance_m", "t_on_s", "t_off_s"), ("mass_kg", "distance_m"))
+    if "linear" in modes:
+        f.fail("payload", "does not apply in linear mode (the linear plant is the gains' model)")
+    mass = f.number("payload.mass_kg", doc["mass_kg"], lo=0, hi=MAX_PAYLOAD_KG, lo_open=False)
+    dist = f.number("payload.distance_m", doc["distance_m"], lo=0, hi=MAX_PAYLOAD_DISTANCE_M, lo_open=False)
+    t_on = f.number("payload.t_on_s", doc.get("t_on_s", 0.0), lo=0, hi=MAX_TIME_S, lo_open=False)
+    t_off = doc.get("t_off_s")
+    if t_off is not None:
+        t_off = f.number("payload.t_off_s", t_off, lo=0, hi=MAX_TIME_S, lo_open=False)
+        if t_off <= t_on:
+            f.fail("payload.t_off_s", "must be after t_on_s (%r), got %r" % (t_on, t_off))
+    return Payload(float(mass), float(dist), float(t_on), None if t_off is None else float(t_off))
+
+
+def _slope(f, doc, modes):
+    """The ``slope`` object -> Slope or None."""
+    if doc is None:
+        return None
+    _optional(f, "slope", doc, ("angle_deg", "ramp_start_m", "ramp_end_m"), ("angle_deg",))
+    if "linear" in modes:
+        f.fail("slope", "does not apply in linear mode (the linear plant is the gains' model)")
+    angle = f.number("slope.angle_deg", doc["angle_deg"], lo=-MAX_SLOPE_DEG, hi=MAX_SLOPE_DEG, lo_open=False)
+    if ("ramp_start_m" in doc) != ("ramp_end_m" in doc):
+        f.fail("slope", "gives ramp_start_m and ramp_end_m together or neither, got %r" % (doc,))
+    if "ramp_start_m" not in doc:
+        return Slope(float(angle))
+    lo = f.number("slope.ramp_start_m", doc["ramp_start_m"], lo=-MAX_RAMP_POSITION_M, hi=MAX_RAMP_POSITION_M,
+                  lo_open=False)
+    hi = f.number("slope.ramp_end_m", doc["ramp_end_m"], lo=-MAX_RAMP_POSITION_M, hi=MAX_RAMP_POSITION_M,
+                  lo_open=False)
+    if hi <= lo:
+        f.fail("slope.ramp_end_m", "must be beyond ramp_start_m (%r), got %r" % (lo, hi))
+    return Slope(float(angle), float(lo), float(hi))
 
 
 def firmware_overrides(x0_si, gyro_sign, firmware_config, wheel_radius_m=None):
@@ -468,3 +549,19 @@ def disturbance_at(sc, t_s):
         if d.t_start_s <= t_s < d.t_end_s:
             w = [a + b for a, b in zip(w, d.w_v)]
     return w
+
+
+def scenario_load(sc, model, x0_model):
+    """The plant's hostsim.world.load.Load for the scenario's payload and slope (None when it
+    has neither: the plant then runs exactly as before). x0_model: the plant's start state,
+    whose axle position is the floor's origin."""
+    if sc.payload is None and sc.slope is None:
+        return None
+    from hostsim.world.load import Floor, Load
+    pl = sc.payload
+    payload = None if pl is None else (pl.mass_kg, pl.distance_m, pl.t_on_s, pl.t_off_s)
+    floor = None
+    if sc.slope is not None:
+        floor = Floor(math.radians(sc.slope.angle_deg), sc.slope.ramp_start_m, sc.slope.ramp_end_m)
+    s0_m = 0.5 * model.variant.d_scale_m * (float(x0_model[0]) + float(x0_model[1]))
+    return Load(model, payload, floor, s0_m)

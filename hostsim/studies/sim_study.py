@@ -17,6 +17,9 @@ import time
 from hostsim.paths import REPO_ROOT, out_dir
 
 SCENARIOS = ("section7", "section7_governed", "section8", "appendix_d", "section8_physical", "brick_realistic")
+# Issue 22: a payload on link 3 and sloped floors on the realistic brick, reported in one
+# compact table (load_table) rather than a section each.
+LOAD_SCENARIOS = ("payload_100g", "payload_put_on", "slope_up_5deg", "slope_down_5deg", "ramp")
 ABLATION_GAINS = ("gains/physical.json",)     # what make deploy ships
 GAINS = ("paper", "physical")
 
@@ -29,6 +32,21 @@ def ensure_gains(say):
             say("%s is missing: generating it (python -m hostsim gains --variant %s)" % (os.path.relpath(path, REPO_ROOT), name))
             if gains.main(["--variant", name]) != 0:
                 raise SystemExit("could not generate %s" % path)
+
+
+def load_table(docs):
+    """One line per run of the payload and slope scenarios: up, when it stopped, the joints'
+    largest offset from their reference after the first 5 s, the share of ticks saturated."""
+    rows = ["| scenario | run | upright | stopped at s | max abs(th2 - ref) rad | max abs(th3 - ref) rad | saturated % |",
+            "|---|---|---|---|---|---|---|"]
+    for doc in docs:
+        for label, m in doc["runs"].items():
+            off = m.get("joint_offset_rad") or [None, None]
+            rows.append("| %s | %s | %s | %s | %s | %s | %.1f |" % (
+                doc["scenario"], label, "yes" if m["upright"] else "no (%s)" % m["stop_reason"],
+                "-" if m["completed"] else "%.1f" % m["duration_s"],
+                *("-" if v is None else "%.3f" % v for v in off), 100 * (m["saturated_fraction"] or 0.0)))
+    return "\n".join(rows)
 
 
 def firmware_note(docs, mc):
@@ -63,6 +81,8 @@ def main(argv=None):
     ap.add_argument("--out", default=out_dir("sim"), help="output directory (default out/sim)")
     ap.add_argument("--scenarios", nargs="+", default=list(SCENARIOS),
                     help="scenario names or files (default: %s)" % " ".join(SCENARIOS))
+    ap.add_argument("--load-scenarios", nargs="*", default=list(LOAD_SCENARIOS),
+                    help="payload and slope scenarios, one compact table (default: %s)" % " ".join(LOAD_SCENARIOS))
     ap.add_argument("--device", choices=("sysfs", "memory"), default="sysfs",
                     help="firmware device layer for the scenarios (default: the fake EV3 sysfs tree)")
     ap.add_argument("--mc-runs", type=int, default=40, help="Monte Carlo runs per gains file (default 40; "
@@ -93,6 +113,12 @@ def main(argv=None):
         doc = runner.run_and_write(sc, os.path.join(args.out, sc.name), sysfs=args.device == "sysfs", say=say)
         docs.append(doc)
         ok &= doc["expect_ok"]
+    load_docs = []
+    for name in args.load_scenarios:
+        sc = load_scenario(name)
+        say("scenario %s" % name)
+        load_docs.append(runner.run_and_write(sc, os.path.join(args.out, sc.name), sysfs=args.device == "sysfs",
+                                              say=say))
     roa_res = mc_res = mc_brick = margins_res = None
     if not args.no_robustness:
         rdir = os.path.join(args.out, "robustness")
@@ -111,14 +137,19 @@ def main(argv=None):
             margins_res = margins.run_margins(coarse=True, ablation_gains=ABLATION_GAINS, jobs=args.jobs)
             margins.write(margins_res, rdir)
     note = firmware_note(docs, mc_res)
-    path = report.write_report(args.out, docs, roa_res, mc_res, firmware_note=note, mc_brick=mc_brick,
-                               margins=margins_res)
+    notes = []
+    if load_docs:
+        notes.append("## Payloads on link 3 and slopes (issue 22)\n\nThe realistic brick with `physical` gains; "
+                     "each scenario's files under its own directory.\n\n" + load_table(load_docs) + "\n")
+    path = report.write_report(args.out, docs, roa_res, mc_res, extra_notes=notes, firmware_note=note,
+                               mc_brick=mc_brick, margins=margins_res)
     for doc in docs:
         print(runner.format_summary(doc))
         print()
     print("(%s)" % runner.SUMMARY_NOTE)
     print()
     tables = [
+        ("Payloads on link 3 and slopes (realistic brick)", load_docs and load_table(load_docs)),
         ("Region of attraction (largest recovered initial angle)", roa_res and roa.format_table(roa_res)),
         ("Monte Carlo (firmware in the loop, physical model)", mc_res and montecarlo.format_table(mc_res)),
         ("Monte Carlo on the realistic brick", mc_brick and montecarlo.format_table(mc_brick)),

@@ -142,13 +142,21 @@ class DrivetrainPlant(Plant):
         u = [float(v) for v in u_v]
         x = self.x.tolist()
         remaining = float(duration_s)
+        t = self.t_s
         while remaining > 1e-12:
+            if self.load is not None:
+                self._load_due(t)
             h = min(self.dt_s, remaining)
             x = self._step(x, u, h)
             remaining -= h
+            t += h
         self.x = np.array(x)
         self.t_s += duration_s
         return self.x
+
+    def set_params(self, params):
+        Plant.set_params(self, params)
+        self._ext, self._pre_ext = fastdyn.compile_model_ext(self.model)
 
     def _modes(self, x, u):
         """Per-step constants: inputs with the free rotors' removed, M's and F's additions
@@ -191,6 +199,10 @@ class DrivetrainPlant(Plant):
                 f = m.c * (x[5 + i0] * a0 + x[5 + i1] * a1)
                 e[15 + i0] += f * a0
                 e[15 + i1] += f * a1
+        if self.load is not None:
+            f = self.load.force(x)
+            if f is not None:
+                e = e[:15] + [a + b for a, b in zip(e[15:], f)]
         out = self._ext(x, u_eff, self._pre_ext, e, rhs)
         qdd = out[5:10]
         if locked:

@@ -77,6 +77,20 @@ class Plant:
         if self.x.shape != (10,):
             raise ValueError("initial state must have 10 entries, got shape %s" % (self.x.shape,))
         self._to_si = np.diag(state_scale_to_si(model.variant)).copy()
+        self.load = None      # hostsim.world.load.Load: a payload schedule, a sloped floor
+
+    def set_params(self, params):
+        """Switch to the same model with other parameters (a payload put on or taken off),
+        keeping the state: no impulse."""
+        self.model = RobotModel(self.model.variant, params)
+        self._fast, self._pre = fastdyn.compile_model(self.model)
+        if self.load is not None:
+            self.load.set_params(self.model.params)
+
+    def _load_due(self, t_s):
+        params = self.load.due(t_s)
+        if params is not None:
+            self.set_params(params)
 
     @property
     def x_si(self):
@@ -117,6 +131,8 @@ class Plant:
         f_ext = None if f_ext is None else [float(v) for v in f_ext]
         if not duration_s > 0:
             raise ValueError("duration must be positive, got %r" % duration_s)
+        if self.load is not None:
+            return self._advance_loaded(u, duration_s, f_ext)
         if f_ext is None:
             pre = self._pre
             fast = self._fast
@@ -140,6 +156,41 @@ class Plant:
                 k4 = deriv([a + h * b for a, b in zip(x, k3)], u, f_ext)
                 x = [a + (h / 6.0) * (b + 2.0 * c + 2.0 * d + e) for a, b, c, d, e in zip(x, k1, k2, k3, k4)]
             remaining -= h
+        self.x = np.array(x)
+        self.t_s += duration_s
+        return self.x
+
+    def _advance_loaded(self, u, duration_s, f_ext):
+        """advance() with self.load: its parameter steps at their times, its force at every
+        evaluation (hostsim.world.load)."""
+        ext, _ = fastdyn.compile_model_ext(self.model)
+        zeros_m = [0.0] * 15
+        load = self.load
+
+        def deriv(x):
+            f = load.force(x) or [0.0] * 5
+            if f_ext is not None:
+                f = [a + b for a, b in zip(f, f_ext)]
+            return ext(x, u, self._pre, zeros_m + f, ())
+
+        x = [float(v) for v in self.x]
+        t = self.t_s
+        remaining = float(duration_s)
+        heun = self.method == "heun"
+        while remaining > 1e-12:
+            self._load_due(t)
+            h = min(self.dt_s, remaining)
+            k1 = deriv(x)
+            if heun:
+                k2 = deriv([a + h * b for a, b in zip(x, k1)])
+                x = [a + (0.5 * h) * (b + c) for a, b, c in zip(x, k1, k2)]
+            else:
+                k2 = deriv([a + 0.5 * h * b for a, b in zip(x, k1)])
+                k3 = deriv([a + 0.5 * h * b for a, b in zip(x, k2)])
+                k4 = deriv([a + h * b for a, b in zip(x, k3)])
+                x = [a + (h / 6.0) * (b + 2.0 * c + 2.0 * d + e) for a, b, c, d, e in zip(x, k1, k2, k3, k4)]
+            remaining -= h
+            t += h
         self.x = np.array(x)
         self.t_s += duration_s
         return self.x

@@ -1,0 +1,125 @@
+"""What a load on link 3 and a sloped floor do to the plant (issue 22).
+
+Payload: a point mass on link 3's axis at a distance from its joint. Link 3 and the mass
+become one rigid body: mass m3 + m, centre of mass moved along the link, inertia about the
+new centre by the parallel-axis theorem. The model's links are rods whose l3 is both half
+the length and the CoM distance (hostsim.model.equations), but nothing sits above link 3,
+so l3 enters its equations only as the CoM distance: the loaded link is the same model with
+m3, l3, J3 changed (payload_params). Putting it on or taking it off is a step change of
+those parameters; the speeds are kept (a hand sets the load down on the moving link and
+lifts it off with it: no impulse, "a put-on from above carries no momentum").
+
+Slope: the model is planar, its coordinates measured along and across the floor. A floor
+that rises by alpha in the forward direction turns gravity in that frame: g cos(alpha)
+across the floor, g sin(alpha) along it, backwards. The model already has g across the
+floor; the rest is a generalized force -dV/dq with
+V_extra = g sum m_i (x_i sin(alpha) + y_i (cos(alpha) - 1)), x_i along and y_i across the
+floor from the axle, over the links and the wheels (the wheels roll along the incline, so
+they are pulled along it too). With a ramp profile alpha depends on where the axle is
+along the floor (flat, ramp, flat); the link angles stay measured from the local floor's
+normal and the kink itself is not modelled (no impact, no change of the link angles at
+it; the gyro does not see the floor's turn). On a constant slope these are exact.
+"""
+import math
+
+
+def payload_params(params, mass_kg, distance_m):
+    """params with link 3 carrying a point mass mass_kg at distance_m from its joint."""
+    if mass_kg <= 0.0:
+        return dict(params)
+    m3, l3, j3 = params["m3_kg"], params["l3_m"], params["j3_kg_m2"]
+    m = m3 + mass_kg
+    c = (m3 * l3 + mass_kg * distance_m) / m
+    out = dict(params)
+    out["m3_kg"] = m
+    out["l3_m"] = c
+    out["j3_kg_m2"] = j3 + m3 * (l3 - c) ** 2 + mass_kg * (distance_m - c) ** 2
+    return out
+
+
+class Floor:
+    """The floor's slope along the axle's path: alpha (rad, positive: rising forward) between
+    ramp_start_m and ramp_end_m (along the floor from the axle's start), flat outside; with
+    no ramp bounds, alpha everywhere."""
+
+    def __init__(self, angle_rad, ramp_start_m=None, ramp_end_m=None):
+        self.angle_rad = float(angle_rad)
+        self.ramp_start_m = ramp_start_m
+        self.ramp_end_m = ramp_end_m
+
+    def angle_at(self, s_m):
+        if self.ramp_start_m is not None and not (self.ramp_start_m <= s_m < self.ramp_end_m):
+            return 0.0
+        return self.angle_rad
+
+
+class SlopeForce:
+    """The generalized force (5, the model's units) of gravity's turn on a sloped floor,
+    for one model's parameters (module docstring)."""
+
+    def __init__(self, model, floor, s0_m=0.0):
+        p = model.params
+        self.floor = floor
+        self.s0_m = float(s0_m)           # the axle's position at the start (the floor's origin)
+        self.half_d = 0.5 * model.variant.d_scale_m
+        self.set_params(p)
+
+    def set_params(self, p):
+        self.g = p["g_m_s2"]
+        self.m1, self.m2, self.m3 = p["m1_kg"], p["m2_kg"], p["m3_kg"]
+        self.l1, self.l2, self.l3 = p["l1_m"], p["l2_m"], p["l3_m"]
+        self.m_all = self.m1 + self.m2 + self.m3 + 2.0 * p["mw_kg"]
+
+    def at(self, x):
+        """[Q_dr, Q_dl, Q_th1, Q_th2, Q_th3] at state x (a list, the model's units)."""
+        s_m = self.half_d * (x[0] + x[1]) - self.s0_m
+        a = self.floor.angle_at(s_m)
+        if a == 0.0:
+            return [0.0] * 5
+        gs, gc = self.g * math.sin(a), self.g * (math.cos(a) - 1.0)
+        th1, th12 = x[2], x[2] + x[3]
+        th123 = th12 + x[4]
+        m1, m2, m3, l1, l2, l3 = self.m1, self.m2, self.m3, self.l1, self.l2, self.l3
+        c1, c12, c123 = math.cos(th1), math.cos(th12), math.cos(th123)
+        s1, s12, s123 = math.sin(th1), math.sin(th12), math.sin(th123)
+        # sum m_i dx_i/dq and sum m_i dy_i/dq over the links (x_i = ... + l sin, y_i = ... + l cos)
+        x3, y3 = m3 * l3 * c123, -m3 * l3 * s123
+        x2 = (m2 + 2.0 * m3) * l2 * c12 + x3
+        y2 = -(m2 + 2.0 * m3) * l2 * s12 + y3
+        x1 = (m1 + 2.0 * m2 + 2.0 * m3) * l1 * c1 + x2
+        y1 = -(m1 + 2.0 * m2 + 2.0 * m3) * l1 * s1 + y2
+        qd = -gs * self.m_all * self.half_d
+        return [qd, qd, -(gs * x1 + gc * y1), -(gs * x2 + gc * y2), -(gs * x3 + gc * y3)]
+
+
+class Load:
+    """A run's payload schedule and floor, for hostsim.world.plant.Plant (its ``load``).
+
+    payload: (mass_kg, distance_m, t_on_s, t_off_s or None) or None; floor: a Floor or None;
+    times from the plant's start (its t_s).
+    """
+
+    def __init__(self, model, payload=None, floor=None, s0_m=0.0):
+        self.base_params = dict(model.params)
+        self.events = []                  # (t_s, params), in time order
+        if payload is not None:
+            mass_kg, distance_m, t_on_s, t_off_s = payload
+            self.events.append((float(t_on_s), payload_params(self.base_params, mass_kg, distance_m)))
+            if t_off_s is not None:
+                self.events.append((float(t_off_s), dict(self.base_params)))
+        self.slope = None if floor is None or floor.angle_rad == 0.0 else SlopeForce(model, floor, s0_m)
+
+    def due(self, t_s, eps_s=1e-9):
+        """The parameters to switch to at t_s (the last event due), or None."""
+        out = None
+        while self.events and self.events[0][0] <= t_s + eps_s:
+            out = self.events.pop(0)[1]
+        return out
+
+    def set_params(self, params):
+        if self.slope is not None:
+            self.slope.set_params(params)
+
+    def force(self, x):
+        """The extra generalized force at x (5, the model's units), or None on a flat floor."""
+        return None if self.slope is None else self.slope.at(x)
