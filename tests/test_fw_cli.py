@@ -1,5 +1,6 @@
 """python3 -m tipbot_fw: refusals before touching devices, exit codes, a run on the fake EV3."""
 import os
+import signal
 import subprocess
 import sys
 
@@ -159,3 +160,38 @@ def test_on_robot_bench_runs_against_any_devices():
     assert 'of the 5 ms period' in lines[5] and 'this brick keeps 5 ms' in lines[6]
     assert dev.duties == [0, 0, 0, 0] and dev.stop_calls >= 2
     assert dev.duty_writes >= 40 * 4      # the pattern, not the controller, was written
+
+
+def _sigterm_self(*_):
+    os.kill(os.getpid(), signal.SIGTERM)
+
+
+@pytest.mark.parametrize('where', ['while the log file is made', 'right after the log is opened',
+                                   'right after the running line'])
+def test_a_signal_in_the_start_window_leaves_a_log_that_reads(fake, tmp_path, quick_config, capsys,
+                                                              monkeypatch, where):
+    """SIGTERM before the session's guard takes over (the adversary's 'right after running ...')
+    ends with a readable log that says why, and the motors stopped; never a half-made file."""
+    from tipbot_fw import logcontainer
+    if where == 'while the log file is made':
+        real = logcontainer.LogWriter._write
+        def write(self, data, at=None):
+            _sigterm_self()
+            return real(self, data, at)
+        monkeypatch.setattr(logcontainer.LogWriter, '_write', write)
+    elif where == 'right after the log is opened':
+        real_open = cli.open_log
+        monkeypatch.setattr(cli, 'open_log', lambda *a: (real_open(*a), _sigterm_self())[0])
+    else:
+        real_say = cli._say
+        monkeypatch.setattr(cli, '_say', lambda m: (real_say(m), m.startswith('running') and _sigterm_self()))
+    log = str(tmp_path / 'run.log')
+    code = cli.main(['run', '--gains', PHYSICAL_GAINS, '--config', quick_config, '--duration', '5',
+                     '--log', log, '--sysfs-root', fake.sysfs_root])
+    err = capsys.readouterr().err
+    assert code == 143, err
+    header, rows = read_log(log)
+    assert header['stop_reason'] == 'sigterm' and header['exit_code'] == 143 and len(rows) == 0
+    assert 'nothing ran' not in err and 'log {}'.format(log) in err and 'Traceback' not in err
+    for port in ('outA', 'outB', 'outC', 'outD'):
+        assert fake.motor_duty(port) == 0 and not fake.motor_running(port)

@@ -318,3 +318,37 @@ def test_cues_go_to_stdout_and_stderr_once_each_or_once_for_one_terminal(tmp_pat
         f.close()
     assert (tmp_path / 'out').read_text() == 'tipbot: LET GO NOW: balancing\n' * 2
     assert (tmp_path / 'err').read_text() == 'tipbot: LET GO NOW: balancing\n'
+
+
+@pytest.mark.parametrize('how, words', [('unlink', 'deleted'), ('truncate', 'cut short'),
+                                        ('replace', 'replaced'), ('move', 'moved away')])
+def test_a_log_taken_away_during_the_run_is_said_at_the_end(tmp_path, how, words):
+    """Another process deletes, empties, replaces or moves the log mid-run: the run still stops
+    as it would, and its last line says the log is gone instead of naming it as written."""
+    path = str(tmp_path / 'run.log')
+
+    def take_away(n):
+        if n != 40:
+            return
+        if how == 'unlink':
+            os.unlink(path)
+        elif how == 'truncate':
+            os.truncate(path, 0)
+        elif how == 'replace':
+            os.unlink(path)
+            open(path, 'wb').close()
+        else:
+            os.rename(path, path + '.moved')
+
+    dev = MemoryDevices()
+    code, header, _, msgs = session(tmp_path, dev, VirtualClock(on_sleep=TickCounter(dev, take_away)), duration_s=0.5)
+    assert dev.stop_calls >= 1 and dev.duties == [0, 0, 0, 0]
+    assert code == header['exit_code'] == 1     # a completed run whose log is lost is not a success
+    assert any(words in m and m.startswith('log {}: '.format(path)) for m in msgs), msgs
+    assert msgs[-1] == 'stopped: completed (exit 1, 100 ticks); no log: {} was taken away'.format(path)
+
+
+def test_a_log_left_alone_is_not_said_to_be_taken_away(tmp_path):
+    dev = MemoryDevices()
+    code, header, path, msgs = session(tmp_path, dev, duration_s=0.2)
+    assert code == 0 and not any('taken away' in m for m in msgs)

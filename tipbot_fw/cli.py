@@ -137,11 +137,17 @@ def _main(argv, guard, hbt, supervisor_problem):
     try:
         log = None
         if args.command == 'run':
+            guard.defer()       # a signal while the file is made is raised once it is whole
             try:
                 log = open_log(_log_path(args), gains, config, args.duration)
             except (OSError, logfile.LogWriteError) as e:
                 _say('refused to start: {}; nothing was started'.format(e.strerror or e))
                 return safety.EXIT_INVALID
+            try:
+                guard.arm()
+            except (KeyboardInterrupt, safety.Terminated) as e:
+                _refused(log, gains, config, args, e, guard, cues)
+                return safety.classify(e)[1]
         return _start(args, config, gains, log, hbt, guard, cues, telemetry)
     finally:
         cues.close()
@@ -164,6 +170,7 @@ def _start(args, config, gains, log, hbt, guard, cues, telemetry):
         return safety.EXIT_DEVICES
     try:
         if args.command == 'run':
+            guard.defer()   # until the session's guard arms: it stops the motors and finishes the log
             return _run(args, config, gains, devices, log, hbt, guard, cues, telemetry)
         return COMMANDS[args.command](args, config, gains, devices)
     finally:

@@ -90,6 +90,7 @@ class LogWriter(object):
         self.columns = [{'name': n, 'unit': u} for n, u in columns]
         self.rows_written = 0   # rows given (the next row's index), kept or not
         self.failed = None
+        self.lost = None        # set by close(): the file was taken away during the run
         self.closed = False
         self.head, self.slots, self.slot_rows = keep if keep is not None else (None, 0, 1)
         self.slot_bytes = _OVERHEAD + 8 * self.ncols * self.slot_rows
@@ -228,11 +229,41 @@ class LogWriter(object):
         except OSError as e:
             if self.failed is None:
                 self.failed = 'finishing the log failed: {}'.format(e.strerror or e)
+        self.lost = self._taken_away()
         try:
             os.close(self.fd)
         except OSError:
             pass
-        return self.failed
+        return self.lost or self.failed
+
+    def _taken_away(self):
+        """-> why the file at ``path`` is not this run's log any more, or None. Another process
+        may unlink, replace or truncate it while the run writes: the writes then land in a file
+        nobody sees, or after a hole where the header was."""
+        try:
+            mine = os.fstat(self.fd)
+        except OSError:
+            return None     # cannot tell: the writes' own errors are in ``failed``
+        try:
+            there = os.stat(self.path)
+        except OSError:
+            there = None
+        if mine.st_nlink == 0:
+            return 'the file was {} during the run (by another process): the log is lost'.format(
+                'deleted' if there is None else 'replaced by another file')
+        if there is None:
+            return 'the file was moved away during the run (by another process): it is not at this path'
+        if (there.st_dev, there.st_ino) != (mine.st_dev, mine.st_ino):
+            return 'the file was moved away and another put at its path during the run (by another process)'
+        try:
+            with open(self.path, 'rb') as f:
+                start = f.read(len(MAGIC))
+        except OSError:
+            return None
+        if start != MAGIC:
+            return 'the file was cut short during the run (by another process): its start is gone and it does ' \
+                'not read'
+        return None
 
 
 def write_log(path, header, rows, columns):

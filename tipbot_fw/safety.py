@@ -163,13 +163,20 @@ class SignalGuard(object):
 
     After the first signal (or disarm()), further signals are only counted: a second Ctrl-C
     cannot interrupt the motor stop and log write that the first one started.
+
+    defer(): a signal is kept and raised by the next arm(), not where it lands: the command line
+    defers while it makes the run's log file and from the devices' set-up to the session's guard,
+    so a signal in those windows still ends in a log that reads (or in none), never in a file
+    half made.
     """
 
     def __init__(self, heartbeat=None):
         self.armed = False
+        self.deferring = False
         self.installed = False
         self.ignored = 0
         self.heartbeat = heartbeat
+        self.deferred = 0       # the signal kept by defer(), raised by arm()
         self._previous = {}
 
     def exception(self, signum):
@@ -191,6 +198,12 @@ class SignalGuard(object):
         return Terminated('terminated by {}'.format(signal_name(signum)), 'signal')
 
     def _handler(self, signum, frame):
+        if self.deferring:
+            if not self.deferred:
+                self.deferred = signum
+            else:
+                self.ignored += 1
+            return
         if not self.armed:
             self.ignored += 1
             return
@@ -214,14 +227,26 @@ class SignalGuard(object):
             self.armed = False
             raise self.exception(signum)
 
+    def defer(self):
+        """Keep a signal for the next arm() (only while armed: a disarmed guard only counts)."""
+        self.deferring = self.armed
+
     def arm(self):
+        """Signals raise again; one kept while deferred raises now."""
+        self.deferring = False
         self.armed = True
+        signum, self.deferred = self.deferred, 0
+        if signum:
+            self.armed = False
+            raise self.exception(signum)
 
     def disarm(self):
         self.armed = False
+        self.deferring = False
 
     def restore(self):
         self.armed = False
+        self.deferring = False
         self.installed = False
         for sig, handler in self._previous.items():
             try:

@@ -163,12 +163,12 @@ def run_session(devices, gains, config, clock, log_path=None, duration_s=None,
         if log is not None:
             problem = log.close(end)
             if problem:
-                say('log {}: {}; the file keeps what was written before (it reads back, marked incomplete)'.format(
-                    log.path, problem))
+                say('log {}: {}{}'.format(log.path, problem, '' if log.lost else
+                                          '; the file keeps what was written before (it reads back, marked incomplete)'))
                 if code == EXIT_OK:
                     code = header['exit_code'] = EXIT_ERROR
-            note = '; log {}'.format(log.path)
-            gaps = log.not_kept()
+            note = '; no log: {} was taken away'.format(log.path) if log.lost else '; log {}'.format(log.path)
+            gaps = [] if log.lost else log.not_kept()
             if gaps:
                 note += ' (ticks {}: not kept, the file holds the start and the last ticks: log_max_rows, ' \
                     'log_head_rows)'.format(', '.join('{}..{}'.format(a, b) for a, b in gaps))
