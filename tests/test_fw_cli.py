@@ -18,7 +18,7 @@ from conftest import PHYSICAL_GAINS, REPO
 @pytest.fixture
 def no_devices(monkeypatch):
     """Fails the test if the CLI tries to open devices."""
-    def forbidden(config, root):
+    def forbidden(config, root, source):
         raise AssertionError('devices opened')
     monkeypatch.setattr(cli, '_open_devices', forbidden)
 
@@ -195,3 +195,22 @@ def test_a_signal_in_the_start_window_leaves_a_log_that_reads(fake, tmp_path, qu
     assert 'nothing ran' not in err and 'log {}'.format(log) in err and 'Traceback' not in err
     for port in ('outA', 'outB', 'outC', 'outD'):
         assert fake.motor_duty(port) == 0 and not fake.motor_running(port)
+
+
+@pytest.mark.parametrize('fields, expected', [
+    ({'drivers': {'joint3': 'lego-ev3-l-motor'}},
+     ['field drivers.joint3: port outD: expected lego-ev3-l-motor, found lego-ev3-m-motor']),
+    ({'ports': {'gyro': 'in1'}}, ['field ports.gyro: port in1: no sensor found (expected lego-ev3-gyro)']),
+    ({'drivers': {'joint3': 'lego-ev3-l-motor'}, 'ports': {'gyro': 'in1'}},
+     ['field drivers.joint3: port outD', 'field ports.gyro: port in1']),
+])
+def test_a_config_naming_a_wrong_device_is_refused_by_file_and_field(tmp_path, capsys, fields, expected):
+    """The adversary's config with the wrong driver or port: one line naming the file and field."""
+    cfg = S.write_json(tmp_path / 'config.json', fields)
+    with FakeEV3(str(tmp_path / 'sys')) as f:
+        assert cli.main(['check', '--config', cfg, '--sysfs-root', f.sysfs_root]) == 3
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and 'Traceback' not in err, err
+    assert err.startswith('tipbot: devices: {}: field '.format(cfg))
+    for part in expected:
+        assert '{}: {}'.format(cfg, part) in err

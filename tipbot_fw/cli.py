@@ -80,16 +80,22 @@ def _parser():
     return p
 
 
-def _open_devices(config, sysfs_root):
-    """-> (Ev3Devices, None), or (None, why) after saying why (missing device, wrong driver,
-    no ev3dev2)."""
+def _open_devices(config, sysfs_root, source):
+    """-> (Ev3Devices, None), or (None, why) after saying why on one line (missing device, wrong
+    driver: named by the configuration ``source`` and field; no ev3dev2)."""
     try:
-        from tipbot_fw.ev3io import Ev3Devices   # late: needs python-ev3dev2, only on the robot
-        return Ev3Devices(config, sysfs_root=sysfs_root), None
+        from tipbot_fw.ev3io import Ev3Devices, Ev3SetupError   # late: needs python-ev3dev2, only on the robot
     except Exception as e:
         why = '{}: {}'.format(type(e).__name__, e)
-        _say('devices: ' + why)
-        return None, why
+    else:
+        try:
+            return Ev3Devices(config, sysfs_root=sysfs_root), None
+        except Ev3SetupError as e:
+            why = e.one_line(source)
+        except Exception as e:
+            why = '{}: {}'.format(type(e).__name__, ' '.join(str(e).split()))
+    _say('devices: ' + why)
+    return None, why
 
 
 def main(argv=None, guard=None, environ=None):
@@ -128,7 +134,7 @@ def _main(argv, guard, hbt, supervisor_problem):
             _say(note)
         gains = load_gains(args.gains) if getattr(args, 'gains', None) else None
         if gains is not None:
-            check_config_against_gains(config, gains, args.config or 'the default configuration')
+            check_config_against_gains(config, gains, _config_source(args))
         telemetry = _telemetry(args)
     except (ConfigError, GainsError, TelemetryError) as e:
         _say('refused to start: {}'.format(e))
@@ -159,7 +165,7 @@ def _start(args, config, gains, log, hbt, guard, cues, telemetry):
     """The devices, then the command; a run refused here (devices missing, a signal while they
     are set up) gets its log and its stop cue."""
     try:
-        devices, why = _open_devices(config, args.sysfs_root)
+        devices, why = _open_devices(config, args.sysfs_root, _config_source(args))
     except (KeyboardInterrupt, safety.Terminated) as e:   # the device layer stopped what it had set up
         if log is not None:
             _refused(log, gains, config, args, e, guard, cues)
@@ -184,6 +190,11 @@ def _refused(log, gains, config, args, error, guard, cues):
     guard.disarm()
     reason, code, _ = safety.classify(error)
     cues.stopped(reason, code)
+
+
+def _config_source(args):
+    """How messages name the configuration: its file, or the defaults."""
+    return args.config or 'the default configuration (tipbot_fw/default_config.json)'
 
 
 def _telemetry(args):

@@ -73,9 +73,17 @@ class Ev3SetupError(Ev3DeviceError):
     ``port outD: expected lego-ev3-m-motor, found lego-ev3-l-motor``.
     """
 
-    def __init__(self, problems):
+    def __init__(self, problems, fields=None):
         self.problems = list(problems)
+        # the configuration field each problem comes from ('drivers.joint3'), or None
+        self.fields = list(fields) if fields is not None else [None] * len(self.problems)
         Ev3DeviceError.__init__(self, 'EV3 devices not ready:\n  ' + '\n  '.join(self.problems))
+
+    def one_line(self, source):
+        """The problems on one line, each named by the file and field it comes from (``source``:
+        the configuration file, or the words for the defaults)."""
+        return '; '.join(p if f is None else '{}: field {}: {}'.format(source, f, p)
+                         for p, f in zip(self.problems, self.fields))
 
 
 class Ev3IOError(Ev3DeviceError, OSError):
@@ -141,14 +149,17 @@ def survey(ev3dev2, class_name, pattern):
     return found
 
 
-def _check(found, port, driver, kind, problems):
-    """The device dir on ``port`` if it has ``driver``, else None with the problem noted."""
+def _check(found, port, driver, kind, role, problems, fields):
+    """The device dir on ``port`` if it has ``driver``, else None with the problem noted (and
+    the configuration field it comes from: the port's, or the driver's)."""
     if port not in found:
         problems.append('port {}: no {} found (expected {})'.format(port, kind, driver))
+        fields.append('ports.' + role)
         return None
     path, actual = found[port]
     if actual != driver:
         problems.append('port {}: expected {}, found {}'.format(port, driver, actual))
+        fields.append('drivers.' + role)
         return None
     return path
 
@@ -185,14 +196,14 @@ def discover(config, sysfs_root='/sys/class'):
     with under_root(sysfs_root) as ev3dev2:
         found_motors = survey(ev3dev2, 'tacho-motor', 'motor*')
         found_sensors = survey(ev3dev2, 'lego-sensor', 'sensor*')
-        problems = []
+        problems, fields = [], []
         paths = {}
-        for port, driver in motors:
-            path = _check(found_motors, port, driver, 'motor', problems)
+        for role, (port, driver) in zip(MOTOR_ROLES, motors):
+            path = _check(found_motors, port, driver, 'motor', role, problems, fields)
             if path:
                 paths[port] = path
         gyro_port, gyro_driver = gyro
-        path = _check(found_sensors, gyro_port, gyro_driver, 'sensor', problems)
+        path = _check(found_sensors, gyro_port, gyro_driver, 'sensor', GYRO_ROLE, problems, fields)
         if path:
             paths[gyro_port] = path
             dev = ev3dev2.Device('lego-sensor', os.path.basename(path), name_exact=True)
@@ -200,8 +211,9 @@ def discover(config, sysfs_root='/sys/class'):
             if GYRO_MODE not in modes:
                 problems.append('port {}: sensor has no {} mode (modes: {})'.format(
                     gyro_port, GYRO_MODE, ' '.join(modes)))
+                fields.append('drivers.' + GYRO_ROLE)
         if problems:
-            raise Ev3SetupError(problems)
+            raise Ev3SetupError(problems, fields)
         return paths, tuple(count_per_rot(ev3dev2, paths[port]) for port, _ in motors)
 
 
