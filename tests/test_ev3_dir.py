@@ -127,3 +127,91 @@ def test_service_unit_runs_the_launcher():
     assert svc["ExecStart"] == svc["WorkingDirectory"] + "/tipbot"
     assert svc["KillSignal"] == "SIGINT"  # the firmware stops the motors on KeyboardInterrupt
     assert cp["Install"]["WantedBy"] == "multi-user.target"
+
+
+def fake_sudo(tmp_path):
+    """A `sudo` that runs its command as this user (install.sh's writes go to tmp_path)."""
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir()
+    (bin_dir / "sudo").write_text('#!/bin/sh\nexec "$@"\n')
+    (bin_dir / "sudo").chmod(0o755)
+    return str(bin_dir)
+
+
+def pam_rtprio(limits_file, user):
+    """The rtprio a pam_limits session of ``user`` gets from the file install.sh wrote."""
+    for line in limits_file.read_text().splitlines():
+        fields = line.split()
+        if len(fields) == 4 and not line.startswith("#") and fields[0] == user and fields[2] == "rtprio":
+            return int(fields[3])
+    return 0
+
+
+def session_prefix(rtprio):
+    """Commands that start a process as a login session with ``rtprio`` would: the rtprio limit
+    set (prlimit: needs CAP_SYS_RESOURCE to raise it) and CAP_SYS_NICE dropped (setpriv), so that
+    only the limit grants SCHED_FIFO. Where the limit cannot be raised, a session granted
+    SCHED_FIFO some other way (as root here) stands in for rtprio > 0. None if neither works."""
+    if not (shutil.which("setpriv") and shutil.which("prlimit")):
+        return None
+    faithful = ["prlimit", "--rtprio={0}:{0}".format(rtprio), "setpriv", "--bounding-set=-sys_nice",
+                "--inh-caps=-sys_nice"]
+    for prefix in ([faithful, []] if rtprio > 0 else [faithful]):
+        probe = subprocess.run(prefix + [sys.executable, "-c", "import os; os.sched_setscheduler(0, os.SCHED_FIFO, "
+                                         "os.sched_param(%d))" % max(1, rtprio)], stderr=subprocess.PIPE)
+        if (probe.returncode == 0) == (rtprio > 0):
+            return prefix
+    return None
+
+
+def launch_on_fake_ev3(tmp_path, prefix, name):
+    """The launcher of a full install directory (the real firmware) on a fake EV3, 0.2 s."""
+    from hostsim.world.fake_ev3 import FakeEV3
+    d = tmp_path / name
+    shutil.copytree(os.path.join(REPO, "tipbot_fw"), str(d / "tipbot_fw"),
+                    ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copy2(os.path.join(EV3, "tipbot"), str(d / "tipbot"))
+    shutil.copy2(os.path.join(REPO, "gains", "physical.json"), str(d / "gains.json"))
+    (d / "config.json").write_text('{"gyro_calibration": {"settle_s": 0.02, "duration_s": 0.05}}')
+    log = str(tmp_path / (name + ".log"))
+    with FakeEV3(str(tmp_path / (name + "-sys")), battery_v=8.0) as fake:
+        fake.set_readings((0, 0, 0, 0))
+        p = subprocess.run(prefix + [sys.executable, str(d / "tipbot"), "--duration", "0.2", "--quiet",
+                                     "--log", log, "--sysfs-root", fake.sysfs_root],
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, universal_newlines=True, timeout=60)
+    return p, log
+
+
+def test_a_launcher_start_after_install_rtprio_runs_sched_fifo_and_one_without_says_so(tmp_path):
+    """install.sh --rtprio writes the pam_limits line; a session that has it gets SCHED_FIFO from
+    the launcher (start line and log header); one without it gets a one-line refusal and runs."""
+    import getpass
+    import pytest
+    from tipbot_fw.logfile import read_log
+    d = make_install_dir(tmp_path)
+    limits_dir = tmp_path / "limits.d"
+    limits_dir.mkdir()
+    env = dict(os.environ, LIMITS_DIR=str(limits_dir), PATH=fake_sudo(tmp_path) + os.pathsep + os.environ["PATH"],
+               PYTHON=fake_python(tmp_path, numpy="1.12.1", ev3dev2="2.1.0"))
+    p = subprocess.run(["sh", str(d / "install.sh"), "--rtprio"], env=env, stdout=subprocess.PIPE,
+                       stderr=subprocess.STDOUT, universal_newlines=True)
+    assert p.returncode == 0, p.stdout
+    rtprio = pam_rtprio(limits_dir / "tipbot.conf", getpass.getuser())
+    assert rtprio >= 51      # the loop's 50 and the supervisor's one above
+
+    granted, refused = session_prefix(rtprio), session_prefix(0)
+    if granted is None or refused is None:
+        pytest.skip("this machine cannot start a session with a given rtprio and without CAP_SYS_NICE")
+    p, log = launch_on_fake_ev3(tmp_path, granted, "installed")
+    assert p.returncode == 0, p.stderr
+    assert "tipbot: scheduling: SCHED_FIFO priority 50\n" in p.stderr
+    assert read_log(log)[0]["loop"]["realtime"]["granted"] is True
+
+    p, log = launch_on_fake_ev3(tmp_path, refused, "not-installed")
+    assert p.returncode == 0, p.stderr
+    lines = [l for l in p.stderr.splitlines() if "scheduling" in l or "priority" in l]
+    assert len(lines) == 1 and lines[0].startswith("tipbot: scheduling: normal, SCHED_FIFO priority 50 refused ("), \
+        p.stderr
+    assert "./install.sh --rtprio" in lines[0]
+    header = read_log(log)[0]
+    assert header["loop"]["realtime"]["granted"] is False and header["loop"]["realtime"]["rtprio_limit"] == [0, 0]

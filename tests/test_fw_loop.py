@@ -284,7 +284,7 @@ def test_the_start_line_says_which_scheduling_the_run_got():
         'scheduling: SCHED_FIFO priority 50'
     refused = scheduling_line({'requested_priority': 50, 'granted': False, 'error': '[Errno 1] Operation not permitted'})
     assert refused.startswith('scheduling: normal, SCHED_FIFO priority 50 refused ([Errno 1] Operation not '
-                              'permitted): run ./install.sh --rtprio') and '\n' not in refused
+                              'permitted) for the loop and its supervisor: run ./install.sh --rtprio') and '\n' not in refused
     lines = []
     loop, _, _ = make_loop(VirtualClock(), duration_s=0.02, on_scheduling=lines.append)
     loop.run()
@@ -293,7 +293,8 @@ def test_the_start_line_says_which_scheduling_the_run_got():
 
 def test_no_realtime_request_at_priority_0():
     loop, _, _ = make_loop(VirtualClock(), duration_s=0.05, realtime_priority=0)
-    assert loop.run().realtime == {'requested_priority': 0, 'granted': False, 'error': 'not requested'}
+    assert loop.run().realtime == {'requested_priority': 0, 'granted': False, 'error': 'not requested',
+                                   'rtprio_limit': None}
 
 
 def test_balances_the_simulated_robot_in_lock_step():
@@ -320,3 +321,24 @@ def test_the_detector_core_balances_the_simulated_robot_too():
     assert code == 0 and header['estimator'] == 'detector'
     assert np.abs(states[-200:, 2]).max() < 0.02
     assert np.abs(states[-1, :2]).max() < 0.02        # and near where it started
+
+
+def test_a_soft_rtprio_limit_below_the_hard_one_is_raised_before_asking(monkeypatch):
+    """ulimit -Sr 0 under a hard limit of 60 (a pam_limits 'hard' line): the request raises the
+    soft limit itself, as any process may, instead of being refused."""
+    from tipbot_fw import realtime
+    limits = {'now': (0, 60)}
+    monkeypatch.setattr(realtime.resource, 'getrlimit', lambda what: limits['now'])
+    monkeypatch.setattr(realtime.resource, 'setrlimit', lambda what, v: limits.update(now=tuple(v)))
+    asked = []
+
+    def setscheduler(pid, policy, param):    # as the kernel judges an unprivileged process
+        if param.sched_priority > limits['now'][0]:
+            raise PermissionError(1, 'Operation not permitted')
+        asked.append(param.sched_priority)
+    monkeypatch.setattr(realtime.os, 'sched_setscheduler', setscheduler)
+    info, restore = realtime.ask_fifo(50)
+    assert limits['now'] == (50, 60) and asked[0] == 50 and info['granted'] and info['rtprio_limit'] == [50, 60]
+    limits['now'] = (0, 10)         # a hard limit below the priority: raised to it, still refused
+    info, _ = realtime.ask_fifo(50)
+    assert limits['now'] == (10, 10) and not info['granted'] and info['error']

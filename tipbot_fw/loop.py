@@ -43,10 +43,10 @@ Motors are not stopped here: the caller (tipbot_fw.session) stops them in its fi
 """
 import collections
 import gc
-import os
 
 from tipbot_fw import logfile
 from tipbot_fw.heartbeat import NOT_SUPERVISED
+from tipbot_fw.realtime import ask_fifo
 from tipbot_fw.plausibility import GYRO_MAX_DPS, EncoderBound, check_battery
 from tipbot_fw.config import MAX_STALL_S
 from tipbot_fw.safety import DeviceFailure, FallDetected, JointLimit, OverrunLimit, Terminated
@@ -87,37 +87,15 @@ class LoopStats(object):
         return dict(self.__dict__)
 
 
-def request_realtime(priority):
-    """Ask for SCHED_FIFO at `priority` (0: don't). -> (info dict for the log, restore function)."""
-    info = {'requested_priority': priority, 'granted': False, 'error': None}
-    if priority <= 0 or not hasattr(os, 'sched_setscheduler'):
-        info['error'] = 'not requested' if priority <= 0 else 'not supported on this platform'
-        return info, lambda: None
-    try:
-        old_policy = os.sched_getscheduler(0)
-        old_param = os.sched_getparam(0)
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
-    except OSError as e:
-        info['error'] = str(e)
-        return info, lambda: None
-    info['granted'] = True
-
-    def restore():
-        try:
-            os.sched_setscheduler(0, old_policy, old_param)
-        except OSError:
-            pass
-    return info, restore
-
-
 def scheduling_line(info):
-    """What the start says of the scheduling request_realtime() got."""
+    """What the start says of the scheduling ask_fifo() got."""
     if info['granted']:
         return 'scheduling: SCHED_FIFO priority {}'.format(info['requested_priority'])
     if info['requested_priority'] <= 0:
         return 'scheduling: normal (no real-time priority asked for: realtime_priority 0)'
-    return ('scheduling: normal, SCHED_FIFO priority {} refused ({}): run ./install.sh --rtprio once on the '
-            'brick (or start it as tipbot.service)'.format(info['requested_priority'], info['error']))
+    return ('scheduling: normal, SCHED_FIFO priority {} refused ({}) for the loop and its supervisor: run '
+            './install.sh --rtprio once on the brick (or start it as tipbot.service)'.format(
+                info['requested_priority'], info['error']))
 
 
 class ControlLoop(object):
@@ -156,7 +134,7 @@ class ControlLoop(object):
     def run(self):
         """Run until duration_s is reached (returns LoopStats) or an exception stops it."""
         stats = self.stats
-        stats.realtime, restore_sched = request_realtime(self.realtime_priority)
+        stats.realtime, restore_sched = ask_fifo(self.realtime_priority)
         if self.on_scheduling is not None:
             self.on_scheduling(scheduling_line(stats.realtime))
         gc_was_enabled = gc.isenabled()

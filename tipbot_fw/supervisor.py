@@ -76,6 +76,7 @@ import time  # noqa: E402
 
 from tipbot_fw import heartbeat as hb  # noqa: E402
 from tipbot_fw.config import MOTOR_ROLES, ConfigError, default_sysfs_root, load_config  # noqa: E402
+from tipbot_fw.realtime import ask_fifo  # noqa: E402
 from tipbot_fw.safety import EXIT_CONTROLLER_DIED, EXIT_INVALID, termination_signals  # noqa: E402
 
 TIMEOUT_S = 0.025
@@ -231,12 +232,13 @@ def _ignore(signals):
 
 
 def _realtime(priority):
-    if priority <= 0 or not hasattr(os, 'sched_setscheduler'):
+    if priority <= 0:
         return
-    try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(min(99, priority + 1)))
-    except OSError as e:
-        say('no real-time priority ({}): a controller spinning at its own could starve this guard'.format(e))
+    info, _ = ask_fifo(min(99, priority + 1))
+    # not permitted: the controller's start line says so, for both, with what to do
+    if not info['granted'] and 'not permitted' not in (info['error'] or ''):
+        say('no real-time priority ({}): a controller spinning at its own could starve this guard'.format(
+            info['error']))
 
 
 def supervise(argv, timeout_s=TIMEOUT_S, poll_s=POLL_S, grace_s=GRACE_S, python=None):
