@@ -354,5 +354,5 @@ def test_ev3io_imports_only_what_the_brick_has():
             names.update(a.name.split('.')[0] for a in node.names)
         elif isinstance(node, ast.ImportFrom):
             names.add(node.module.split('.')[0])
-    assert names <= {'logging', 'os', 'struct', 'ev3dev2', 'tipbot_fw'}, names
+    assert names <= {'os', 'struct', 'ev3dev2', 'tipbot_fw'}, names
 

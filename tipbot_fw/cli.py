@@ -9,7 +9,6 @@ command line unchanged (the launcher passes its arguments on).
 import argparse
 
 from tipbot_fw import heartbeat, identify, logfile, safety
-from tipbot_fw.bench import brick_bench
 from tipbot_fw.calibration import calibrate_gyro
 from tipbot_fw.clock import MonotonicClock
 from tipbot_fw.config import (SYSFS_ROOT, SYSFS_ROOT_ENV, ConfigError, check_config_against_gains,
@@ -275,6 +274,7 @@ def _calibrate(args, config, gains, devices):
 
 
 def _bench(args, config, gains, devices):
+    from tipbot_fw.bench import brick_bench   # late: a run does not keep the bench's modules
     brick_bench(devices, gains, config, args.ticks)
     return safety.EXIT_OK
 

@@ -21,18 +21,23 @@ made (the log's header is written before the calibration); angles(mem_row) for a
 header() for the log; limits; battery_v; max_count_step, the largest change of a wheel's count
 from tick to tick the core takes (None: any), which the loop's plausibility check enforces.
 """
-from tipbot_fw.detector_core import DetectorCore
-from tipbot_fw.kalman import KalmanCore
+import importlib
 
-CORES = {'kalman': KalmanCore, 'detector': DetectorCore}
+# imported when selected: a run keeps the modules of its own core only (memory on the brick)
+CORES = {'kalman': ('tipbot_fw.kalman', 'KalmanCore'), 'detector': ('tipbot_fw.detector_core', 'DetectorCore')}
+
+
+def core_class(estimator):
+    module, name = CORES[estimator]
+    return getattr(importlib.import_module(module), name)
 
 
 def make_core(gains, config, counts_per_rot=(360, 360, 360, 360), layout=None):
     """The core the configuration selects, for these gains (layout: its row_layout(), to share
     the one the log was opened with)."""
-    return CORES[config['estimator']](gains, config, counts_per_rot, layout)
+    return core_class(config['estimator'])(gains, config, counts_per_rot, layout)
 
 
 def row_layout(gains, config):
     """The log row of the core the configuration selects (tipbot_fw.logfile)."""
-    return CORES[config['estimator']].row_layout(gains, config)
+    return core_class(config['estimator']).row_layout(gains, config)

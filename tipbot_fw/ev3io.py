@@ -38,11 +38,11 @@ Ev3ReadError / Ev3WriteError, which are OSErrors naming the port and attribute.
 Python 3.5 + the standard library (python-ev3dev2 is imported at start-up only).
 """
 
-import logging
 import os
 import struct
 
 from tipbot_fw.config import MOTOR_ROLES
+from tipbot_fw.console import say   # (not logging: its modules are memory the brick does not spare)
 
 GYRO_ROLE = 'gyro'
 GYRO_MODE = 'GYRO-G&A'
@@ -59,7 +59,6 @@ _GYRO = struct.Struct('<hh')
 # brick, and a duty out of range or not integral misses it instead of being written truncated.
 _DUTY_BYTES = dict((d, ('%d\n' % d).encode('ascii')) for d in range(-DUTY_LIMIT, DUTY_LIMIT + 1))
 
-_LOG = logging.getLogger(__name__)
 
 
 class Ev3DeviceError(Exception):
@@ -305,13 +304,13 @@ class SysfsDevices(object):
             return
         self._closed = True
         for failure in self.stop_all():
-            _LOG.error(failure)
+            say(failure)
         fds, self._fds = self._fds, []
         for fd in fds:
             try:
                 self._io.close(fd)
             except OSError as e:
-                _LOG.warning('closing fd %d: %s', fd, e)
+                say('closing fd {}: {}'.format(fd, e))
         self._battery_fd = -1
         self._forget_fds()
 

@@ -44,11 +44,20 @@ def map_page(fd):
 
 def create_page():
     """Supervisor side: -> (fd, mmap, words) of a fresh zeroed page in an unlinked file."""
-    import tempfile
-    where = '/dev/shm' if os.path.isdir('/dev/shm') and os.access('/dev/shm', os.W_OK) else None
-    f = tempfile.TemporaryFile(prefix='tipbot-heartbeat-', dir=where)
-    fd = os.dup(f.fileno())
-    f.close()
+    # not tempfile: it imports random, shutil and the compressors, a megabyte of the supervisor's
+    # (and its guard's) memory on the brick
+    where = '/dev/shm' if os.path.isdir('/dev/shm') and os.access('/dev/shm', os.W_OK) else \
+        os.environ.get('TMPDIR') or '/tmp'
+    for n in range(1000):
+        path = os.path.join(where, 'tipbot-heartbeat-{}-{}'.format(os.getpid(), n))
+        try:
+            fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_EXCL, 0o600)
+        except FileExistsError:
+            continue
+        os.unlink(path)
+        break
+    else:
+        raise OSError(17, 'no free heartbeat page name in {}'.format(where))
     os.ftruncate(fd, PAGE_BYTES)
     page, words = map_page(fd)
     return fd, page, words

@@ -23,7 +23,6 @@ Exit codes of `python3 -m tipbot_fw` (also in README/cli help):
       the supervisor died and the controller stopped its motors itself
 """
 import signal
-import traceback
 
 EXIT_OK = 0
 EXIT_ERROR = 1
@@ -146,6 +145,7 @@ def outcome(error):
         return 'completed', EXIT_OK, 'completed'
     reason, code, msg = classify(error)
     if code == EXIT_ERROR:
+        import traceback   # late: only a bug needs it (and its modules are the supervisor's memory)
         traceback.print_exception(type(error), error, error.__traceback__)
     return reason, code, msg
 

@@ -70,7 +70,6 @@ if __name__ == '__main__':
 
 import os  # noqa: E402
 import select  # noqa: E402
-import subprocess  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 
@@ -224,11 +223,60 @@ class Watch(object):
         return None
 
 
-def _ignore(signals):
-    def preexec():
-        for s in signals:
-            signal.signal(s, signal.SIG_IGN)
-    return preexec
+class Child(object):
+    """The controller's process, started as subprocess.Popen would start it (fork, then exec with
+    ``pass_fds`` kept open and ``ignored`` signals ignored; an exec failure is this constructor's
+    OSError), without importing subprocess: its modules are about 2 MB of this process's memory
+    on the brick, and the guard's copy of them more."""
+
+    def __init__(self, argv, env, pass_fds, ignored):
+        err_r, err_w = os.pipe()            # closed by a successful exec (O_CLOEXEC)
+        self.pid = os.fork()
+        if self.pid == 0:
+            try:
+                for sig in ignored:
+                    signal.signal(sig, signal.SIG_IGN)
+                for fd in pass_fds:
+                    os.set_inheritable(fd, True)
+                os.execvpe(argv[0], argv, env)
+            except OSError as e:
+                os.write(err_w, str(e.errno or 0).encode('ascii'))
+            finally:
+                os._exit(127)
+        os.close(err_w)
+        failed = os.read(err_r, 16)
+        os.close(err_r)
+        self.returncode = None
+        if failed:
+            os.waitpid(self.pid, 0)
+            errno = int(failed)
+            raise OSError(errno, os.strerror(errno), argv[0])
+
+    def _ended(self, status):
+        self.returncode = -os.WTERMSIG(status) if os.WIFSIGNALED(status) else os.WEXITSTATUS(status)
+        return self.returncode
+
+    def poll(self):
+        if self.returncode is None:
+            pid, status = os.waitpid(self.pid, os.WNOHANG)
+            if pid:
+                self._ended(status)
+        return self.returncode
+
+    def wait(self):
+        if self.returncode is None:
+            while True:
+                try:
+                    return self._ended(os.waitpid(self.pid, 0)[1])
+                except InterruptedError:
+                    continue
+        return self.returncode
+
+    def kill(self):
+        try:
+            os.kill(self.pid, signal.SIGKILL)
+        except OSError:
+            pass
 
 
 def _realtime(priority):
@@ -277,8 +325,7 @@ def supervise(argv, timeout_s=TIMEOUT_S, poll_s=POLL_S, grace_s=GRACE_S, python=
         say('{} before the controller started: not started'.format(signal_name(s)))
         return 128 + s
     try:
-        proc = subprocess.Popen([python or sys.executable, '-m', 'tipbot_fw'] + list(argv), env=env,
-                                pass_fds=(page_fd, pipe_w), preexec_fn=_ignore(signals))
+        proc = Child([python or sys.executable, '-m', 'tipbot_fw'] + list(argv), env, (page_fd, pipe_w), signals)
     except OSError as e:
         say('cannot start the controller: {}'.format(e))
         return EXIT_INVALID
