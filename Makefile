@@ -48,6 +48,8 @@ RECORD   ?=
 SNAPSHOT ?=
 # make bench TELEMETRY_EVERY=20: the decimation of the telemetry bench (the firmware's default)
 TELEMETRY_EVERY ?= 20
+# make bench MEM_SECONDS=60: the seconds of ticks after which tools/mem-cost reads the run's memory
+MEM_SECONDS ?= 60
 
 .DEFAULT_GOAL := help
 .PHONY: help venv test gains paper-check sim replay bench brick stage deploy run logs watch sim-brick \
@@ -126,6 +128,10 @@ bench: venv
 	$(VPY) tools/tick-cost --ticks $(TICKS) --ticks-flag=--bench-polls -- python3 -m tipbot_fw.supervisor
 	@echo "== the device layer's own cost (5 reads, 4 writes per tick, beside the tick's)"
 	$(VPY) tools/tick-cost --ticks $(TICKS) -- python3 -m tipbot_fw.bench --device-layer
+	@echo "== the whole tick as the brick pays it: supervised, the device layer on files and the real clock"
+	$(VPY) tools/tick-cost --ticks $(TICKS) --period-ms 5 -- python3 -m tipbot_fw.bench --whole
+	@echo "== memory: the supervisor, its guard and the controller of a supervised run (RSS, PSS)"
+	$(VPY) tools/mem-cost --seconds $(MEM_SECONDS)
 
 brick:
 	tools/brick-setup

@@ -80,3 +80,40 @@ def test_on_the_virtual_brick(tmp_path):
     per_tick = float(p.stdout.split("tick-cost: ")[-1].split()[0])
     # one float multiply-add in CPython 3.11 on ARMv5 soft-float: hundreds to a few thousand insns
     assert 200 < per_tick < 20000, p.stdout
+
+
+def test_the_brick_estimate_scales_the_count_to_the_brick_and_its_period(fake_insns):
+    p = run(["--ticks", "500", "--period-ms", "5", "--", "python3", "-m", "tipbot_fw.bench"], fake_insns)
+    assert p.returncode == 0, p.stderr
+    # 1234 insns x 1.21 at 300 MHz = 0.005 ms, 0 % of 5 ms
+    assert "tick-cost: brick estimate 0.00 ms a tick (x1.21 for its Python 3.5), 0 % of the 5 ms period" in p.stdout
+
+
+def _mem_cost():
+    import importlib.machinery
+    import importlib.util
+    loader = importlib.machinery.SourceFileLoader("mem_cost", os.path.join(REPO, "tools", "mem-cost"))
+    spec = importlib.util.spec_from_loader("mem_cost", loader)
+    module = importlib.util.module_from_spec(spec)
+    loader.exec_module(module)
+    return module
+
+
+def test_mem_cost_counts_only_the_guest_mappings():
+    """qemu-arm's smaps hold the 32-bit guest (below 4 GiB) and QEMU itself (above): only the
+    guest's pages are the brick's."""
+    smaps = ("00010000-00400000 r-xp 00000000 fe:00 1 /usr/bin/python3.11\nSize: 4032 kB\nRss: 2000 kB\n"
+             "Pss: 1000 kB\n"
+             "3f000000-3f100000 rw-p 00000000 00:00 0 \nRss: 300 kB\nPss: 300 kB\n"
+             "563fdf5ec000-563fdf78c000 r-xp 00078000 fe:00 2 /usr/bin/qemu-arm\nRss: 1344 kB\nPss: 1344 kB\n")
+    assert _mem_cost().guest_smaps_kb(smaps) == (2300, 1300)
+
+
+def test_the_whole_tick_bench_runs_on_the_real_device_layer_and_clock():
+    p = subprocess.run([sys.executable, "-m", "tipbot_fw.bench", "--ticks", "40", "--whole"], cwd=REPO,
+                       stdout=subprocess.PIPE, stderr=subprocess.PIPE, universal_newlines=True, timeout=60)
+    assert p.returncode == 0, p.stderr
+    assert "ticks 40 (+1 start tick)" in p.stdout and "whole (the device layer on files and the real clock)" in p.stdout
+    p = subprocess.run([sys.executable, "-m", "tipbot_fw.bench", "--ticks", "4", "--whole", "--bare"], cwd=REPO,
+                       stdout=subprocess.PIPE, stderr=subprocess.PIPE, universal_newlines=True)
+    assert p.returncode == 2 and "usage" in p.stderr

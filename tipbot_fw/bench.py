@@ -13,7 +13,10 @@ imports only tipbot_fw, numpy and the standard library (no ev3dev2), and does
 the same start-up work for every N, so the instruction count of N ticks minus that of 0 ticks,
 divided by N, is the cost of one tick including its log row. The fake devices and the clock
 are C-level callables (bench_devices, FrozenClock), so what is counted is the firmware's own
-work; the real device layer's reads and writes come on top (tipbot_fw.ev3io).
+work; the real device layer's reads and writes come on top (tipbot_fw.ev3io). ``--whole``
+counts what the brick pays for a tick: the same supervised loop with the real device layer on
+plain files (FileDevices) and the real clock (MonotonicClock), its time reads and sleeps
+included (the sleeps' kernel time is not instructions).
 Without --gains it uses the repository's gains/physical.json when there is one, else synthetic
 gains with the structure of the real ones. `--device-layer` instead counts the real device
 layer (tipbot_fw.ev3io: 5 reads, 4 writes per tick) on plain files (FileDevices).
@@ -25,6 +28,7 @@ import collections
 import itertools
 import math
 import os
+import shutil
 import socket
 import sys
 import tempfile
@@ -178,15 +182,18 @@ def bench_devices():
     return dev
 
 
-def run_memory(n_ticks, gains=None, bare=False, sender=None):
+def run_memory(n_ticks, gains=None, bare=False, sender=None, whole=False):
     """The loop for 1 + n_ticks ticks on bench_devices() and a FrozenClock, with the owner's cues
     (no brick) and `sender` (a TelemetrySender or None) in its slack -> (LoopStats, log). Unless
     bare: supervised (a heartbeat page), plausibility-checked, its log written to a temporary
-    file (removed)."""
+    file (removed). whole: what the brick pays for a tick, the real device layer (FileDevices)
+    and the real clock (MonotonicClock: its reads of the time and its sleeps) included; the
+    overrun stop is off (an emulator may run a tick late)."""
     config = defaults()
     if gains is None:
         gains = synthetic_gains()
-    dev = bench_devices()
+    root = tempfile.mkdtemp(prefix='tipbot-bench-') if whole else None
+    dev = FileDevices(root).devices if whole else bench_devices()
     core = make_core(gains, config, dev.counts_per_rot)
     core.set_gyro_bias(0.0)
     extra = {}
@@ -204,14 +211,22 @@ def run_memory(n_ticks, gains=None, bare=False, sender=None):
         _, page, words = heartbeat.create_page()
         extra = dict(heartbeat=heartbeat.Heartbeat(words, os.getppid(), page),
                      encoder_bound=EncoderBound(config, dev.counts_per_rot, gains.ts_s))
-    loop = ControlLoop(dev, core, FrozenClock(), log, gains.ts_s, 8.0,
+    if whole:
+        extra.update(max_lost_s=float('inf'), max_stall_s=float('inf'))
+    else:
+        extra.update(max_lost_s=config['limits']['max_lost_s'])
+    loop = ControlLoop(dev, core, MonotonicClock() if whole else FrozenClock(), log, gains.ts_s, 8.0,
                        battery_period_s=config['battery_period_s'],
                        overrun_window_s=config['limits']['overrun_window_s'],
-                       max_lost_s=config['limits']['max_lost_s'],
                        duration_s=(n_ticks + 1) * gains.ts_s, realtime_priority=0, **extra)
     loop.side = slack.combine(OwnerCues(streams=()).in_loop(loop, config['limits']['warn_battery_v']),
                               sender.attach(log, loop.stats, core) if sender else None)
-    stats = loop.run()
+    try:
+        stats = loop.run()
+    finally:
+        if whole:
+            dev.close()
+            shutil.rmtree(root, ignore_errors=True)
     if writer is not None:
         log.count = stats.ticks
         log.flush()
@@ -397,12 +412,15 @@ def main(argv=None):
     gains_path = None
     device_layer = False
     bare = False
+    whole = False
     every = None
-    usage = 'usage: python3 -m tipbot_fw.bench --ticks N [--gains FILE] [--bare] [--telemetry-every M] [--device-layer]'
+    usage = ('usage: python3 -m tipbot_fw.bench --ticks N [--gains FILE] [--bare | --whole] [--telemetry-every M] '
+             '[--device-layer]')
     while args:
-        if args[0] in ('--bare', '--device-layer'):
+        if args[0] in ('--bare', '--device-layer', '--whole'):
             bare = bare or args[0] == '--bare'
             device_layer = device_layer or args[0] == '--device-layer'
+            whole = whole or args[0] == '--whole'
             args = args[1:]
             continue
         if args[0] == '--ticks' and len(args) > 1 and args[1].isdigit():
@@ -426,12 +444,16 @@ def main(argv=None):
         gains_path = REPO_GAINS
     gains = load_gains(gains_path) if gains_path else None
     sender, sink = local_sender(every) if every else (None, None)
-    stats, _ = run_memory(n_ticks, gains, bare, sender)
+    if whole and bare:
+        sys.stderr.write(usage + '\n')
+        return 2
+    stats, _ = run_memory(n_ticks, gains, bare, sender, whole)
     if stats.ticks != n_ticks + 1:
         sys.stderr.write('bench: the loop stopped after {} ticks\n'.format(stats.ticks))
         return 1
     sys.stdout.write('ticks {} (+1 start tick), gains {}{}\n'.format(
-        n_ticks, gains_path or 'synthetic', ', bare (no heartbeat, plausibility or log file)' if bare else ''))
+        n_ticks, gains_path or 'synthetic', ', bare (no heartbeat, plausibility or log file)' if bare else
+        ', whole (the device layer on files and the real clock)' if whole else ''))
     if sender is not None:
         ts_s = gains.ts_s if gains else 0.005
         sys.stdout.write('telemetry: {} datagrams of {} bytes in {} ticks (one every {}: {:.0f} per second at '
