@@ -53,7 +53,14 @@ The options reach the controller as they are: ``-- run --gains ... --quiet --tel
 The supervisor reads two of them itself: ``--config`` (the motor ports) and ``--sysfs-root``
 (default: $TIPBOT_SYSFS_ROOT, then /sys/class, as the controller's).
 """
-import signal
+try:
+    import signal
+except KeyboardInterrupt:       # Ctrl-C in the interpreter's first milliseconds: nothing started
+    if __name__ != '__main__':
+        raise
+    import sys
+    sys.stderr.write('tipbot: supervisor: interrupted while starting: nothing was started\n')
+    sys.exit(130)
 
 # Before the imports below: a Ctrl-C while this module loads is noted, not a traceback, and
 # supervise() then starts nothing.
