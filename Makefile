@@ -52,20 +52,21 @@ TELEMETRY_EVERY ?= 20
 MEM_SECONDS ?= 60
 
 .DEFAULT_GOAL := help
-.PHONY: help venv test gains paper-check sim replay bench brick stage deploy run logs watch sim-brick \
+.PHONY: help venv test test-fast gains paper-check sim replay bench brick stage deploy run logs watch sim-brick \
         sim-brick-stop clean distclean
 
 help:
 	@echo "tipbot make targets (Python ones run in $(VENV), made by 'make venv'):"
 	@echo "  venv         create/update $(VENV) from $(REQ) (idempotent)"
-	@echo "  test         run the test suite (pytest tests/; PYTEST_ARGS=...)"
+	@echo "  test         run the whole test suite, as CI does (pytest tests/; PYTEST_ARGS=...)"
+	@echo "  test-fast    the suite without the tests marked slow (real processes, whole studies)"
 	@echo "  sim          paper scenarios + robustness, firmware in the loop -> out/sim/report.md"
 	@echo "  gains        regenerate gains/*.json; unchanged within tolerance: left as they are"
 	@echo "               (TS=0.010 VARIANT=paper|physical PARAMS=file: another TS/PARAMS gets its own file)"
 	@echo "  paper-check  compare the paper variant's gains with the paper's Appendix C"
 	@echo "  replay       replay a robot log on the host (LOG=file; GAINS=other.json)"
-	@echo "  bench        simulation real-time factor; instructions per control tick on the virtual brick"
-	@echo "  brick        set up the virtual brick for 'make bench' (root, ~2 min)"
+	@echo "  bench        simulation real-time factor; instructions per tick and memory on the virtual brick"
+	@echo "  brick        set up the virtual brick for 'make bench' (root, 5-10 min)"
 	@echo "  stage        lay out what deploy copies, in $(STAGE) (DEPLOY_VARIANT=, CONFIG=)"
 	@echo "  deploy       copy what changed to the brick over ssh (HOST=robot@ev3dev.local; CONFIG=file,"
 	@echo "               REMOVE_CONFIG=1, DEPLOY_VARIANT=physical-ts0.010, FORCE=1, SERVICE=1)"
@@ -92,6 +93,9 @@ $(STAMP):
 	  || echo "make venv: tipbot-host not installed (pip install -e . failed; python -m hostsim works)"
 	@touch $@
 	@echo "make venv: $(VENV) ready ($$($(VPY) --version))"
+
+test-fast: venv
+	@$(VPY) -m pytest tests -m "not slow" -q $(PYTEST_ARGS)
 
 test: venv
 	@$(VPY) -m pytest tests $(PYTEST_ARGS); rc=$$?; \

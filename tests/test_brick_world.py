@@ -101,6 +101,7 @@ def test_the_lights_and_the_speaker_cost_brick_time():
             signals.close()
 
 
+@pytest.mark.slow
 def test_a_timed_run_gives_the_loops_cues_on_the_fake_brick():
     # the let-go melody's rest and 'balancing' come from the loop's side task, each a timed write
     # (hostsim.sim.fil.SlackCues); the writes land between the loop's ticks

@@ -276,6 +276,7 @@ def quick_config(tmp_path):
                         {'realtime_priority': 0, 'gyro_calibration': {'settle_s': 0.05, 'duration_s': 0.05}})
 
 
+@pytest.mark.slow
 def test_the_command_line_shows_the_brick_its_cues_unless_quiet(ev3, tmp_path, quick_config, capsys):
     argv = ['run', '--gains', PHYSICAL_GAINS, '--config', quick_config, '--duration', '0.3',
             '--log', str(tmp_path / 'run.log'), '--sysfs-root', ev3.sysfs_root]

@@ -25,6 +25,8 @@ import time
 import pytest
 from conftest import PAPER_GAINS, PHYSICAL_GAINS, REPO
 
+pytestmark = pytest.mark.slow   # real processes or long studies: not in make test-fast
+
 SHEBANG = b"#!/usr/bin/env python3\n"
 
 

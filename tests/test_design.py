@@ -33,6 +33,7 @@ def designs_10ms(params):
     return {v: design_gains(v, params, ts_s=0.010) for v in VARIANTS}
 
 
+@pytest.mark.slow
 def test_paper_check_within_tolerance():
     res = paper_check_run()
     for key, (median, worst, count) in res["errors"].items():
@@ -283,6 +284,7 @@ def cpu_flags():
     return set()
 
 
+@pytest.mark.slow
 def test_make_gains_leaves_the_committed_files_untouched_under_other_blas_kernels(tmp_path, designs):
     """The BLAS of another CPU (forced with OPENBLAS_CORETYPE, which must be set before numpy
     loads: one process per kernel) regenerates numbers that agree within the tolerances, so
@@ -314,6 +316,7 @@ def test_make_gains_leaves_the_committed_files_untouched_under_other_blas_kernel
     assert len(cores) >= min(2, len(kernels)), cores     # the kernels really differed
 
 
+@pytest.mark.slow
 def test_make_gains_with_another_period_writes_its_own_file(tmp_path, designs):
     gains_dir = tmp_path / "gains"
     shutil.copytree(DEFAULT_OUT_DIR, str(gains_dir))
@@ -378,6 +381,7 @@ def write_params(tmp_path, mutate):
      "field parameters.joint2_beta_nm_s must be a number in [0.0, 0.1], got -0.0001"),
     (lambda p: p.update(colour={"value": 1}), "field parameters.colour is unknown"),
 ])
+@pytest.mark.slow
 def test_bad_parameter_files_are_named(tmp_path, mutate, message):
     path = write_params(tmp_path, mutate)
     with pytest.raises(ParameterError, match="^" + re.escape(path + ": " + message) + "$"):

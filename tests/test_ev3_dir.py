@@ -6,6 +6,8 @@ import stat
 import subprocess
 import sys
 import textwrap
+
+import pytest
 from conftest import REPO
 
 EV3 = os.path.join(REPO, "ev3")
@@ -182,11 +184,11 @@ def launch_on_fake_ev3(tmp_path, prefix, name):
     return p, log
 
 
+@pytest.mark.slow
 def test_a_launcher_start_after_install_rtprio_runs_sched_fifo_and_one_without_says_so(tmp_path):
     """install.sh --rtprio writes the pam_limits line; a session that has it gets SCHED_FIFO from
     the launcher (start line and log header); one without it gets a one-line refusal and runs."""
     import getpass
-    import pytest
     from tipbot_fw.logfile import read_log
     d = make_install_dir(tmp_path)
     limits_dir = tmp_path / "limits.d"

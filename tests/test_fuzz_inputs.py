@@ -107,6 +107,7 @@ CONFIG = {'limits': {'th1_rad': 0.5}, 'filters': {'gyro_rate_cutoff_hz': 20.0}, 
     (CONFIG, (), load_config, ConfigError), (SCENARIO, (), load_scenario, ScenarioError),
     (BRICK_SCENARIO, (), load_scenario, ScenarioError), (PARAMS, (), load_params, ParameterError)],
     ids=['gains', 'gains-kalman-block', 'config', 'scenario', 'brick scenario', 'parameters'])
+@pytest.mark.slow
 @FUZZ
 @given(data=st.data())
 def test_each_file_format_with_one_field_fuzzed(tmp_path, doc, under, reader, error, data):

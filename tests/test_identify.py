@@ -293,6 +293,7 @@ def test_identify_log_format_round_trip(tmp_path):
 
 
 # ------------------------------------------------------------------------------ real time
+@pytest.mark.slow
 def test_real_time_command_line_against_the_simulated_motor(tmp_path):
     """As a user runs it: the simulated motor keeps a fake tree on the wall clock in one
     process, `python3 -m tipbot_fw identify` runs in another."""

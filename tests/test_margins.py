@@ -40,6 +40,7 @@ def test_one_stall_holds_the_duties_and_the_robot_rides_it_out(monkeypatch):
     assert 22 <= skipped.max() <= 26 and (skipped > 0).sum() == 1
 
 
+@pytest.mark.slow
 def test_bisection_finds_the_push_the_robot_takes_and_the_report_shows_it(monkeypatch):
     monkeypatch.setattr(margins, "PUSH_AT_S", 0.5)
     res = margins.run_margins(gains_paths=("gains/physical.json",), coarse=True, ablation_gains=(), jobs=1,

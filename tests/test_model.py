@@ -33,6 +33,7 @@ def undamped(params):
     return p
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("variant", VARIANTS)
 def test_unforced_undamped_model_conserves_energy(params, variant):
     model = RobotModel(variant, undamped(params))
@@ -161,6 +162,7 @@ def test_wheel_motor_is_a_torque_pair_on_wheel_and_link1(params, models):
     assert still[2] == pytest.approx(-(damping + damping_l) * rate, rel=1e-9)
 
 
+@pytest.mark.slow
 def test_motor_inertia_switch_changes_the_model(params, models):
     _, b_full = models["physical"].linearize()
     _, b_no_jm = RobotModel(get_variant("physical", include_motor_inertia=False), params).linearize()

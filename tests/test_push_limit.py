@@ -9,6 +9,8 @@ from conftest import gains_path
 from hostsim.studies import push_limit as pl
 from hostsim.world.plant import Plant, link_push_impulse
 
+pytestmark = pytest.mark.slow   # real processes or long studies: not in make test-fast
+
 
 @pytest.fixture(scope="module")
 def design():

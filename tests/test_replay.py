@@ -61,6 +61,7 @@ def write_raw(path, header, rows, version=1, columns=None):
 
 
 # ------------------------------------------------------------------ exact replay
+@pytest.mark.slow
 def test_a_simulated_log_replays_exactly_with_plots(sim_log, tmp_path, capsys):
     code, out, err = run_main(capsys, sim_log, "--out", tmp_path / "plots")
     assert code == 0, err
@@ -160,6 +161,7 @@ def test_a_replay_that_differs_from_the_log_is_reported(sim_log, tmp_path, capsy
 
 
 # ------------------------------------------------------------------ other gains
+@pytest.mark.slow
 def test_other_gains_show_what_they_would_have_commanded(sim_log, tmp_path, capsys):
     code, out, err = run_main(capsys, sim_log, "--gains", PAPER_GAINS, "--out", tmp_path)
     assert code == 0, err

@@ -38,6 +38,7 @@ def test_the_verbs_run_as_a_module():
     assert p.returncode == 0 and p.stdout.startswith("usage: python -m hostsim bench-sim")
 
 
+@pytest.mark.slow
 def test_run_writes_metrics_and_plots(tmp_path, capsys):
     out = tmp_path / "near"
     assert main(["run", "near_equilibrium", "--out", str(out), "--modes", "linear,nonlinear"]) == 0
@@ -73,6 +74,7 @@ def test_unknown_verb(capsys):
     assert "montecarlo" in capsys.readouterr().out
 
 
+@pytest.mark.slow
 def test_sim_writes_the_report(tmp_path, capsys):
     out = tmp_path / "sim"
     code = main(["sim", "--out", str(out), "--scenarios", "section7", "--no-robustness", "--device", "memory"])

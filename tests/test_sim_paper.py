@@ -90,6 +90,7 @@ def test_section8_short_rejects_the_wheel_disturbance():
     assert np.max(np.abs(a[:, 2] - b[:, 2])) < 1e-3
 
 
+@pytest.mark.slow
 def test_appendix_d_short_optimal_beats_pd():
     sc = shortened("appendix_d", 5.0, shift_s=4.0)         # disturbance from 1 to 3 s
     gs, runs, m = run_metrics(sc, ["linear"])
@@ -103,6 +104,7 @@ def test_appendix_d_short_optimal_beats_pd():
     assert max(opt["peak_abs_u_v"]) < U_MAX and max(pd["peak_abs_u_v"]) < U_MAX
 
 
+@pytest.mark.slow
 def test_pd_baseline_is_stable_and_close_to_the_lq_cost():
     for variant in ("paper", "physical"):
         pd = pd_for_gains(gains_path(variant))
@@ -145,6 +147,7 @@ def test_linear_and_nonlinear_agree_near_equilibrium():
     assert np.max(np.abs(lin.u - nl.u)) < 0.05
 
 
+@pytest.mark.slow
 def test_the_reference_governor_keeps_section7_within_the_motors():
     """Section 7's initial state asks ~20 V of the law; led back along rest points it can
     reach, the law stays within 7.6 V (from a correct first estimate: the printed x~(0) is

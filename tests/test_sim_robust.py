@@ -11,6 +11,7 @@ def _strip(rows):
     return [{k: v for k, v in r.items() if k != "wall_s"} for r in rows]
 
 
+@pytest.mark.slow
 def test_montecarlo_results_do_not_depend_on_the_worker_count():
     kw = dict(runs=3, duration_s=0.5, gains_paths=("gains/physical.json",), kw0=True, seed=11)
     one = montecarlo.run_montecarlo(jobs=1, **kw)
@@ -64,6 +65,7 @@ def test_montecarlo_draws_the_bricks_effects_around_their_realistic_values():
     assert sc.firmware_config["start_pose_rad"]["th1"] == 0.0
 
 
+@pytest.mark.slow
 def test_montecarlo_with_kw_zeroed_balances_the_perturbed_robots():
     """With w^ out of the loop the firmware must survive the stated uncertainty (a few runs)."""
     res = montecarlo.run_montecarlo(runs=4, duration_s=3.0, gains_paths=("gains/physical.json",), kw0=True,
@@ -73,6 +75,7 @@ def test_montecarlo_with_kw_zeroed_balances_the_perturbed_robots():
     assert s["peak_abs_u_v"]["max"] <= 7.6 + 1e-9
 
 
+@pytest.mark.slow
 def test_region_of_attraction_bisection_on_the_nonlinear_model():
     base = load_scenario("roa_base")
     res = roa.run_roa(gains_paths=("gains/physical.json",), modes=("nonlinear",), tol=0.04, angles=("th1",),

@@ -15,6 +15,8 @@ from tipbot_fw.cues import STOP_WORDS
 from tipbot_fw.feedback import COLOR_NAMES, STATES, stop_state
 from tipbot_fw.supervisor import MotorStopper, Watch, _past_hold
 
+pytestmark = pytest.mark.slow   # real processes or long studies: not in make test-fast
+
 LIMIT_S = 0.050
 HOLD_S = config.defaults()['limits']['max_stall_s']
 

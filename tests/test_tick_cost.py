@@ -71,6 +71,7 @@ def have_brick():
         os.access(os.path.join(root, "usr", "bin", "python3"), os.X_OK)
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not have_brick(), reason="no virtual brick (make brick)")
 def test_on_the_virtual_brick(tmp_path):
     bench = tmp_path / "trivial_bench.py"

@@ -7,6 +7,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 
 import fw_support as S
 from conftest import REPO
@@ -29,6 +30,7 @@ from tipbot_fw.cues import OwnerCues
 from tipbot_fw.devices import MemoryDevices
 from tipbot_fw.session import run_session
 from tipbot_fw.telemetry import TelemetrySender
+
 dev = MemoryDevices()
 dev.source = S.moving_readings()
 sender = TelemetrySender(sys.argv[1], every=5)
@@ -50,6 +52,7 @@ def read_record(path):
         return list(csv.DictReader(f))
 
 
+@pytest.mark.slow
 def test_watch_records_what_a_run_sends_and_draws_it(tmp_path):
     port = free_udp_port()
     script = tmp_path / 'run.py'
@@ -112,6 +115,7 @@ def test_the_readme_screenshot_is_what_watch_draws_of_its_recording(tmp_path):
     assert a.shape == b.shape and np.abs(a - b).mean() < 0.002
 
 
+@pytest.mark.slow
 def test_the_live_window_follows_the_run(tmp_path, monkeypatch):
     # the window's code path (a redraw every 0.1 s while the command runs, then the window
     # stays until closed) with Agg standing in for a display
