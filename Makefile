@@ -118,7 +118,7 @@ replay: venv
 
 # Instructions per control tick of tipbot_fw.bench on the virtual brick (an ARM926 under QEMU
 # with Debian armel's Python 3.11 + numpy 1.24: an approximation of the brick's Python 3.5 +
-# numpy 1.12, see README). Without the brick it says how to make one.
+# numpy 1.12, see docs/benchmarks.md). Without the brick it says how to make one.
 bench: venv
 	$(VPY) -m hostsim bench-sim
 	@echo "== the control tick as it runs supervised: heartbeat, plausibility checks, log chunks to a file"

@@ -218,7 +218,7 @@ def test_deploy_refuses_gains_that_do_not_hold_their_plants_unless_forced(brick,
         shutil.copytree(os.path.join(REPO, d), str(checkout / d), ignore=shutil.ignore_patterns("__pycache__"))
     shutil.copy(os.path.join(REPO, "Makefile"), str(checkout / "Makefile"))
     # a design whose file records that its loop does not hold every plant of its uncertainty set
-    # (what hostsim gains writes when no weight on its ladder makes it robust: README)
+    # (what hostsim gains writes when no weight on its ladder makes it robust: docs/gains.md)
     with open(PHYSICAL_GAINS) as f:
         doc = json.load(f)
     doc["robust_to_models"] = dict(doc["robust_to_models"], stabilized=False, worst_spectral_radius=1.0021)

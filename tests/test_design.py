@@ -334,7 +334,7 @@ def test_make_gains_with_another_period_writes_its_own_file(tmp_path, designs):
     assert doc["ts_s"] == 0.01 and doc["robust_to_models"]["stabilized"] is True
     assert sorted(os.listdir(str(gains_dir))) == ["paper-ts0.010.json", "paper.json", "physical-ts0.010.json",
                                                   "physical.json"]
-    # what it wrote is the committed fallback (README: when the brick cannot keep 5 ms)
+    # what it wrote is the committed fallback (docs/realistic-brick.md: when the brick cannot keep 5 ms)
     assert compare_with_file(os.path.join(DEFAULT_OUT_DIR, "physical-ts0.010.json"), doc)[0] == []
 
 
@@ -348,7 +348,7 @@ def test_gains_file_names_say_what_differs():
 
 
 def test_committed_10ms_gains_files_agree_with_a_regeneration(designs_10ms):
-    # the fallback for a brick that cannot keep 5 ms (README): make gains TS=0.010
+    # the fallback for a brick that cannot keep 5 ms (docs/realistic-brick.md): make gains TS=0.010
     for variant in VARIANTS:
         path = os.path.join(DEFAULT_OUT_DIR, output_name(variant, 0.010))
         differences, _ = compare_with_file(path, to_document(designs_10ms[variant]))

@@ -121,4 +121,4 @@ def test_a_scenario_firmware_config_names_the_deprecated_field_in_its_place():
     config_from_overrides({'limits': {'max_consecutive_overruns': 7}}, 'scen.json', prefix='firmware_config.',
                           notes=notes)
     assert notes == ['scen.json: field firmware_config.limits.max_consecutive_overruns is no longer used (the '
-                     'overrun stop is now limits.max_lost_s within limits.overrun_window_s; see README): ignored']
+                     'overrun stop is now limits.max_lost_s within limits.overrun_window_s; see docs/realistic-brick.md): ignored']

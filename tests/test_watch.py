@@ -105,7 +105,7 @@ def test_a_busy_port_or_a_bad_recording_gets_one_line(tmp_path, capsys):
 
 def test_the_readme_screenshot_is_what_watch_draws_of_its_recording(tmp_path):
     # docs/watch.png: a loopback run (fake robot, 1 V on the wheels from 5 to 10 s, a push at
-    # 12 s) recorded by watch and drawn from the recording, as README says
+    # 12 s) recorded by watch and drawn from the recording, as docs/deploy.md says
     import matplotlib.image
     again = str(tmp_path / 'watch.png')
     recording = os.path.join(REPO, 'docs', 'watch-recording.csv')

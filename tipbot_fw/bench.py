@@ -271,7 +271,7 @@ def verdict(reads_s, compute_s, writes_s, ticks_s, overruns, period_s):
     else:
         lines.append('verdict: this brick does NOT keep {:g} ms (p99 tick {:.2f} ms > {:.2f} ms, {} overruns): '
                      'deploy the 10 ms gains: make deploy HOST=... DEPLOY_VARIANT=physical-ts0.010 '
-                     '(README, "When the brick cannot keep 5 ms")'.format(period_s * 1e3, t99, budget, overruns))
+                     '(docs/realistic-brick.md, "When the brick cannot keep 5 ms")'.format(period_s * 1e3, t99, budget, overruns))
     return lines
 
 

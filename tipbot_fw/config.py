@@ -87,7 +87,7 @@ _MOTOR_PORT = _one_of('outA', 'outB', 'outC', 'outD')
 
 # The overrun stop's bounds. The window: from a few periods to 2 s (longer, a loop that is
 # behind goes on for seconds before it is stopped). The lost time: more than 0.1 s is beyond any
-# gains' delay margin (README, margins: 33 ms paper, 52 ms physical), and at most half the window
+# gains' delay margin (docs/realistic-brick.md, margins: 33 ms paper, 52 ms physical), and at most half the window
 # (a larger budget lets a loop that runs at half the rate go on for ever).
 OVERRUN_WINDOW_S = (0.02, 2.0)
 MAX_LOST_S = 0.1
@@ -240,7 +240,7 @@ def _drop_deprecated(overrides, f, notes):
         f.check('limits.' + key, limits[key], DEPRECATED_LIMITS[key])
         del out['limits'][key]
         notes.append('{}: field {}limits.{} is no longer used (the overrun stop is now limits.max_lost_s within '
-                     'limits.overrun_window_s; see README): ignored'.format(f.source, f.prefix, key))
+                     'limits.overrun_window_s; see docs/realistic-brick.md): ignored'.format(f.source, f.prefix, key))
     return out
 
 

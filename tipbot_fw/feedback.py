@@ -37,7 +37,7 @@ LEDS = (('left', 'red', 'led0:red:brick-status'), ('left', 'green', 'led0:green:
 # Every state: (left light, right light, melody as (Hz, seconds) notes, 0 Hz a rest), what it
 # means. Left says the phase (amber: starting, green: running or done, red: stopped by a fault,
 # off: stopped before running or by the owner), right the detail; rising melodies are good
-# news, falling ones a stop. README has the table for owners.
+# news, falling ones a stop. README has the table for owners ("What the brick shows").
 STATES = {
     'hold': (AMBER, AMBER, ((440, 0.10), (0, 0.10), (440, 0.10)), 'hold still: calibrating the gyro'),
     'let_go': (AMBER, GREEN, ((523, 0.08), (659, 0.08), (784, 0.12)), 'let go now'),

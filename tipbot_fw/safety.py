@@ -1,6 +1,6 @@
 """Why a run stops, with which exit code, and signal handling that cannot skip the motor stop.
 
-Exit codes of `python3 -m tipbot_fw` (also in README/cli help):
+Exit codes of `python3 -m tipbot_fw` (also in docs/safety.md and the cli help):
   0   run reached --duration (or check/calibrate succeeded)
   1   unexpected error (a bug): motors stopped, log written, traceback printed
   2   invalid command line, config or gains, or a log path that cannot be written (or no room

@@ -20,7 +20,7 @@ simulation time only moves when someone moves it, so here:
 - The brick's lights and speaker (tipbot_fw.feedback: a LED's ``brightness``, a tone event on
   the sound input device), written in the loop's slack after the duties, cost what a sensor
   access does: a small attribute write, mostly the Python call (3,800 and 7,300 ARMv5
-  instructions on the virtual brick, README), little kernel work. So they take brick time
+  instructions on the virtual brick, docs/benchmarks.md), little kernel work. So they take brick time
   like the rest, and a side task that runs long makes the next wake-up late.
 
 A gyro mode write blocks as long as the fake EV3 says (FakeEV3.write_cost), whether or not
