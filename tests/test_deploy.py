@@ -413,7 +413,10 @@ def test_make_watch_records_the_telemetry_of_a_run_on_the_brick(brick, tmp_path)
         rows = list(csv.DictReader(f))
     with open(record) as f:
         got = list(csv.DictReader(f))
-    assert len(got) == 20 and [int(r["tick"]) for r in got] == list(range(0, 400, 20))   # the default: every 20
+    # the default: one every 20 ticks, sent in a tick's slack (a tick left without it under the
+    # machine's load sends at the next one that has it: the schedule then moves by a tick)
+    ticks = [int(r["tick"]) for r in got]
+    assert ticks[0] == 0 and all(b - a >= 20 for a, b in zip(ticks, ticks[1:])) and 17 <= len(got) <= 20, ticks
     for r in got:
         row = rows[int(r["tick"])]
         names = ("time_s", "xt_th1_rad", "xt_d_r_m", "u_l_V", "w_r_V", "battery_v", "duty_2_pct")
