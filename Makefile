@@ -112,7 +112,7 @@ paper-check: venv
 sim: venv
 	$(VPY) -m hostsim sim $(SIM_ARGS)
 
-replay: venv
+replay: $(if $(LOG),venv)
 	@test -n "$(LOG)" || { echo "usage: make replay LOG=path/to/run.log [GAINS=other.json]" >&2; exit 2; }
 	$(VPY) -m hostsim replay $(LOG) $(if $(GAINS),--gains $(GAINS)) $(REPLAY_ARGS)
 
@@ -174,7 +174,7 @@ logs:
 
 # Live plots of the run's telemetry: `hostsim watch` listens on WATCH_PORT and runs `make run`'s
 # command, whose firmware sends its telemetry to the address the ssh connection comes from.
-watch: venv
+watch: $(if $(HOST),venv)
 	$(need_host)
 	$(VPY) -m hostsim watch --port $(WATCH_PORT) $(if $(RECORD),--record $(RECORD)) \
 	  $(if $(SNAPSHOT),--snapshot $(SNAPSHOT)) -- \

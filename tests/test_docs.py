@@ -1,6 +1,8 @@
 """The README stays a short page for an owner and a newcomer, and the docs' links resolve."""
+import os
 import pathlib
 import re
+import subprocess
 
 import pytest
 
@@ -58,3 +60,17 @@ def relative_links_of(text, tmp=None):
         p = pathlib.Path(d) / 'p.md'
         p.write_text(text, encoding='utf-8')
         return list(relative_links(p))
+
+
+@pytest.mark.parametrize("target, usage", [("replay", "usage: make replay LOG="), ("watch", "usage: make watch HOST=")])
+def test_a_target_missing_its_argument_says_so_before_building_the_venv(tmp_path, target, usage):
+    """make replay without LOG, make watch without HOST: the usage line at once, not after the
+    40 s of a venv build (VENV points where there is none)."""
+    venv = tmp_path / "no-venv"
+    env = dict(os.environ)
+    for name in ("LOG", "HOST"):
+        env.pop(name, None)
+    p = subprocess.run(["make", "-s", target, "VENV=%s" % venv], cwd=str(ROOT), env=env, stdout=subprocess.PIPE,
+                       stderr=subprocess.PIPE, universal_newlines=True, timeout=60)
+    assert p.returncode == 2 and usage in p.stderr, p.stderr
+    assert not venv.exists()
