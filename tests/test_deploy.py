@@ -468,3 +468,32 @@ def test_make_sim_brick_prints_its_settings_and_stops_leaving_nothing_running(tm
             p.kill()
     assert "sim-brick: stopped (sshd and the fake robot)" in p.stdout.read()
     assert _processes_mentioning(d) == [] and not os.path.exists(os.path.join(d, "sim-brick.pid"))
+
+
+@pytest.mark.parametrize("rc, ssh_cmd, expected, unexpected", [
+    (0, "ssh -F /tmp/cfg", ["fetch the log with `make logs HOST=simbrick SSH='ssh -F /tmp/cfg'`"], ["give a DURATION"]),
+    (0, "ssh", ["fetch the log with `make logs HOST=simbrick`"], ["SSH="]),
+    (255, "ssh", ["lost the ssh connection", "make sim-brick (it prints the HOST= and SSH= to use)"], []),
+])
+def test_make_run_hints_work_as_printed(monkeypatch, capsys, rc, ssh_cmd, expected, unexpected):
+    """The hints make run prints carry what they need (the SSH= of the loopback brick), say how to
+    get a brick when there is none, and ask for no DURATION that was given."""
+    class FakeSsh(object):
+        def __init__(self, *args):
+            pass
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            return False
+
+        def run(self, script, capture=False, tty=False):
+            return subprocess.CompletedProcess([], rc)
+    monkeypatch.setattr(deploy_tool, "Ssh", FakeSsh)
+    deploy_tool.run("simbrick", duration=10, ssh_cmd=ssh_cmd)
+    out = capsys.readouterr().out
+    for text in expected:
+        assert text in out, out
+    for text in unexpected:
+        assert text not in out, out

@@ -51,7 +51,9 @@ def _parser():
                         help='root of the ev3dev sysfs tree (default ${} or {})'.format(SYSFS_ROOT_ENV, SYSFS_ROOT))
 
     sp = sub.add_parser('run', help='balance')
-    sp.add_argument('--gains', metavar='FILE', required=True)
+    sp.add_argument('--gains', metavar='FILE', required=True,
+                    help='the gains file (JSON, made by make gains on the host: gains/physical.json; '
+                    'the launcher passes the deployed gains.json)')
     sp.add_argument('--duration', metavar='S', type=_positive_float, help='stop after S seconds')
     sp.add_argument('--log', metavar='FILE',
                     help='run log (default tipbot-YYYYmmdd-HHMMSS.log in logs/ if the current directory '
@@ -68,8 +70,9 @@ def _parser():
     sp = sub.add_parser('calibrate', help='measure and print the gyro bias')
     common(sp)
     sp = sub.add_parser('bench', help='timings on the robot: reads, writes, compute, loop ticks')
-    sp.add_argument('--gains', metavar='FILE', required=True)
-    sp.add_argument('--ticks', metavar='N', type=int, default=2000)
+    sp.add_argument('--gains', metavar='FILE', required=True, help='the gains file whose period is judged')
+    sp.add_argument('--ticks', metavar='N', type=_positive_int, default=2000,
+                    help='ticks timed for each measure (default 2000: 10 s at 5 ms); the motors get 1 %% duties')
     common(sp)
     sp = sub.add_parser('identify', help='drive ONE motor, record its run-up and run-down for the '
                         'host\'s motor identification (python -m hostsim identify LOG)',
