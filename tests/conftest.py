@@ -30,3 +30,10 @@ def params():
     """The robot's parameters (params/robot.json), validated."""
     from hostsim.model.params import load_params
     return load_params()
+
+
+@pytest.fixture(autouse=True)
+def _not_over_ssh(monkeypatch):
+    """The firmware's words go to stderr only when started over ssh (SSH_CONNECTION): tests
+    that read the brick's screen (stdout) must not depend on how the suite itself was started."""
+    monkeypatch.delenv("SSH_CONNECTION", raising=False)

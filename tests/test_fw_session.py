@@ -307,6 +307,7 @@ def test_no_let_go_when_the_calibration_refuses(tmp_path):
 
 
 def test_cues_go_to_stdout_and_stderr_once_each_or_once_for_one_terminal(tmp_path, monkeypatch):
+    monkeypatch.delenv('SSH_CONNECTION', raising=False)     # started from brickman
     out, err = open(str(tmp_path / 'out'), 'w'), open(str(tmp_path / 'err'), 'w')
     monkeypatch.setattr('sys.stdout', out)
     monkeypatch.setattr('sys.stderr', err)
@@ -352,3 +353,19 @@ def test_a_log_left_alone_is_not_said_to_be_taken_away(tmp_path):
     dev = MemoryDevices()
     code, header, path, msgs = session(tmp_path, dev, duration_s=0.2)
     assert code == 0 and not any('taken away' in m for m in msgs)
+
+
+def test_over_ssh_without_a_terminal_each_cue_comes_once_and_no_screen_line(tmp_path, monkeypatch):
+    """make run from a script: the remote stdout and stderr are two pipes of one ssh session; the
+    words come once (on stderr) and the screen's short DONE line not at all."""
+    monkeypatch.setenv('SSH_CONNECTION', '10.0.0.2 50000 10.0.0.1 22')
+    out, err = open(str(tmp_path / 'out'), 'w'), open(str(tmp_path / 'err'), 'w')
+    monkeypatch.setattr('sys.stdout', out)
+    monkeypatch.setattr('sys.stderr', err)
+    cues = OwnerCues()
+    cues.let_go()
+    cues.stopped('completed', 0)
+    for f in (out, err):
+        f.close()
+    assert (tmp_path / 'out').read_text() == ''
+    assert (tmp_path / 'err').read_text() == 'tipbot: LET GO NOW: balancing\n'

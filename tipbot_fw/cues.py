@@ -6,7 +6,8 @@ the wheels drive" cannot be the cue: the firmware says when.
 
 Words go to stdout (brickrun and brickman's File Browser show a program's stdout on the
 brick's screen) and to stderr (with the firmware's other messages, over ssh: `make run`), once
-if both are the same terminal. Why a run stopped is already on stderr (the session's "stopped:"
+if both are the same terminal. Started over ssh (SSH_CONNECTION in the environment) stdout is
+not the brick's screen but a second channel of the same session: the words go to stderr only. Why a run stopped is already on stderr (the session's "stopped:"
 line), so its short form goes to the screen only.
 
 Lights and tones (tipbot_fw.feedback; each state's light pair and melody are there) never touch
@@ -99,7 +100,8 @@ class OwnerCues(object):
     def _targets(self, screen_only):
         if self.streams is not None:
             return self.streams
-        out, err = sys.stdout if self.screen else None, sys.stderr
+        on_screen = self.screen and not os.environ.get('SSH_CONNECTION')
+        out, err = sys.stdout if on_screen else None, sys.stderr
         if out is None or err is None or _same_file(out, err):
             return [] if screen_only else [s for s in (err, out) if s is not None][:1]
         return [out] if screen_only else [out, err]
