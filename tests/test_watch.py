@@ -136,3 +136,17 @@ def test_the_live_window_follows_the_run(tmp_path, monkeypatch):
     assert len(updates) > 5 and updates[-1] == 40
     assert os.path.getsize(str(tmp_path / 'v.png')) > 20000
     plt.close('all')
+
+
+def test_without_a_display_watch_says_what_it_keeps(tmp_path, monkeypatch, capsys):
+    """No display: nothing is kept unless asked, and the message says so; a recording asked for
+    lands where it was asked, its folder made."""
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    watch.watch(0, duration_s=0.2, bind="127.0.0.1")
+    out = capsys.readouterr().out
+    assert "watch: no display: nothing is drawn or kept (give RECORD=file.csv or SNAPSHOT=file.png)" in out
+    record = tmp_path / "new" / "run.csv"
+    watch.watch(0, record=str(record), duration_s=0.2, bind="127.0.0.1")
+    assert "watch: no display: keeping the datagrams to %s" % record in capsys.readouterr().out
+    assert record.read_text().startswith("run,seq,tick,")

@@ -96,6 +96,7 @@ class Telemetry(object):
 class Recorder(object):
     def __init__(self, path):
         try:
+            os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
             self.f = open(path, "w", newline="")
         except OSError as e:
             raise WatchError("--record %s: %s" % (path, e.strerror or e))
@@ -235,8 +236,11 @@ def watch(port, record=None, duration_s=None, window_s=DEFAULT_WINDOW_S, snapsho
     recorder = Recorder(record) if record else None
     plt, interactive = pyplot(window)
     if window and not interactive:
-        print("watch: no display: recording only%s" % (" (the view goes to %s)" % snapshot if snapshot else ""),
-              flush=True)
+        kept = [what for what in ("the datagrams to %s" % record if record else None,
+                                  "the view to %s" % snapshot if snapshot else None) if what]
+        print("watch: no display: %s" % ("keeping " + " and ".join(kept) if kept else
+                                         "nothing is drawn or kept (give RECORD=file.csv or SNAPSHOT=file.png); "
+                                         "the summary comes at the end"), flush=True)
     view = View(plt, window_s) if interactive or snapshot else None
     tel = Telemetry()
     child = subprocess.Popen(command) if command else None
