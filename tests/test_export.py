@@ -99,3 +99,9 @@ def test_a_kalman_log_exports_the_physical_columns_the_replay_rebuilds(tmp_path,
     assert export.main([log, '--csv']) == 2
     err = capsys.readouterr().err
     assert "a Kalman log's physical columns need the gains it ran" in err and len(err.splitlines()) == 1
+
+
+def test_csv_is_the_default_format(tmp_path, capsys):
+    a_log(tmp_path / 'run.log')
+    assert export.main([str(tmp_path / 'run.log')]) == 0
+    assert (tmp_path / 'run.csv').read_text().splitlines()[0].startswith('time_s')

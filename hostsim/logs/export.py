@@ -1,6 +1,6 @@
 """A robot log in a common format: CSV for spreadsheets and notebooks.
 
-    python -m hostsim export LOG --csv [--out FILE] [--gains FILE]
+    python -m hostsim export LOG [--csv] [--out FILE] [--gains FILE]
 
 writes FILE (default: the log's name with .csv, next to it) with one header row and one row per
 tick, and FILE's name with .header.json beside it (the log's header: gains, configuration,
@@ -114,7 +114,7 @@ def main(argv=None):
                                  epilog=__doc__.split("\n\n", 1)[1],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("log", metavar="LOG", help="a tipbot log (run or identify)")
-    ap.add_argument("--csv", action="store_true", required=True, help="write CSV (the one format so far)")
+    ap.add_argument("--csv", action="store_true", help="write CSV (the default and the one format so far)")
     ap.add_argument("--out", metavar="FILE", help="the CSV file (default: LOG with .csv)")
     ap.add_argument("--gains", metavar="FILE", help="the gains a Kalman log ran (default: found by its sha256)")
     a = ap.parse_args(argv)
