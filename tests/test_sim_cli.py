@@ -101,3 +101,34 @@ def test_pip_install_puts_the_verbs_on_path_as_tipbot_host(capsys):
     module, func = entry["console_scripts"][0].split(" = ")[1].split(":")
     assert getattr(importlib.import_module(module), func)(["--help"]) == 0
     assert "watch" in capsys.readouterr().out
+
+
+def test_an_interrupted_sim_says_so_in_one_line_and_keeps_the_previous_report(tmp_path, capsys, monkeypatch):
+    from hostsim.studies import runner
+    out = tmp_path / "sim"
+    out.mkdir()
+    (out / "report.md").write_text("the previous report\n")
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+    monkeypatch.setattr(runner, "run_and_write", interrupted)
+    code = main(["sim", "--out", str(out), "--scenarios", "section7", "--no-robustness", "--device", "memory"])
+    err = capsys.readouterr().err
+    assert code == 130
+    assert (out / "report.md").read_text() == "the previous report\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["sim"]       # no half-made report beside it
+    assert "sim: interrupted: nothing new written; %s keeps the previous report" % out in err
+    assert "Traceback" not in err
+
+
+def test_long_jobs_say_how_far_they_are_while_they_run():
+    import io
+    import time as _time
+    from hostsim.sim.parallel import Progress
+    stream = io.StringIO()
+    bar = Progress(4, "Monte Carlo", every_s=0.05, stream=stream)
+    bar.update(1)
+    _time.sleep(0.2)
+    bar.close()
+    lines = stream.getvalue().splitlines()
+    assert lines and lines[0].startswith("Monte Carlo: 1/4 done, ") and "s left" in lines[0]

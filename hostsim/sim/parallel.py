@@ -1,11 +1,19 @@
 """Run independent simulations on the available cores, results in input order.
 
 Every task carries its own seed, so the results do not depend on the number of workers
-or on which worker ran what. A tqdm progress bar is shown on a terminal only.
+or on which worker ran what. Progress: a line on stderr every PROGRESS_EVERY_S (runs done of
+all, the time left estimated from the pace so far), on a terminal or in a log. Ctrl-C: the
+workers ignore it (no traceback from each of them), this process gets the KeyboardInterrupt and
+the workers are ended at once.
 """
 import os
+import signal
 import sys
-from concurrent.futures import ProcessPoolExecutor
+import threading
+import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
+
+PROGRESS_EVERY_S = 10.0
 
 
 def default_jobs():
@@ -15,12 +23,38 @@ def default_jobs():
         return max(1, os.cpu_count() or 1)
 
 
-def _progress(total, desc):
-    try:
-        from tqdm import tqdm
-    except ImportError:      # progress is a nicety, never a dependency of the results
-        return None
-    return tqdm(total=total, desc=desc, disable=not sys.stderr.isatty(), leave=False)
+class Progress(object):
+    """'DESC: k/N done, T s so far, about L s left' on stderr every ``every_s`` while it runs."""
+
+    def __init__(self, total, desc, every_s=PROGRESS_EVERY_S, stream=None):
+        self.total, self.desc, self.done, self.every_s = total, desc or "runs", 0, every_s
+        self.stream = sys.stderr if stream is None else stream
+        self.t0 = time.monotonic()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def line(self):
+        elapsed = time.monotonic() - self.t0
+        left = ", about %.0f s left" % (elapsed / self.done * (self.total - self.done)) if self.done else ""
+        return "%s: %d/%d done, %.0f s so far%s" % (self.desc, self.done, self.total, elapsed, left)
+
+    def _run(self):
+        while not self._stop.wait(self.every_s):
+            try:
+                print(self.line(), file=self.stream, flush=True)
+            except (OSError, ValueError):
+                return
+
+    def update(self, n=1):
+        self.done += n
+
+    def close(self):
+        self._stop.set()
+
+
+def _ignore_sigint():
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def run_tasks(fn, tasks, jobs=None, desc=None, warm=None):
@@ -33,23 +67,26 @@ def run_tasks(fn, tasks, jobs=None, desc=None, warm=None):
     tasks = list(tasks)
     if warm is not None:
         warm()
-    bar = _progress(len(tasks), desc)
+    bar = Progress(len(tasks), desc)
     results = [None] * len(tasks)
     try:
         if jobs == 1 or len(tasks) <= 1:
             for i, t in enumerate(tasks):
                 results[i] = fn(t)
-                if bar is not None:
-                    bar.update(1)
+                bar.update(1)
             return results
-        with ProcessPoolExecutor(max_workers=min(jobs, len(tasks))) as pool:
+        pool = ProcessPoolExecutor(max_workers=min(jobs, len(tasks)), initializer=_ignore_sigint)
+        try:
             futures = {pool.submit(fn, t): i for i, t in enumerate(tasks)}
-            from concurrent.futures import as_completed
             for fut in as_completed(futures):
                 results[futures[fut]] = fut.result()
-                if bar is not None:
-                    bar.update(1)
+                bar.update(1)
+        except BaseException:       # Ctrl-C, or a task's error: the other runs are not waited for
+            for proc in list(getattr(pool, "_processes", {}).values()):
+                proc.terminate()
+            pool.shutdown(wait=False, cancel_futures=True)
+            raise
+        pool.shutdown()
         return results
     finally:
-        if bar is not None:
-            bar.close()
+        bar.close()

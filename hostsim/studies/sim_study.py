@@ -11,6 +11,7 @@ scenario's expectations fail.
 """
 import argparse
 import os
+import shutil
 import sys
 import time
 
@@ -70,13 +71,6 @@ def firmware_note(docs, mc):
 
 
 def main(argv=None):
-    from hostsim.studies import margins
-    from hostsim.studies import montecarlo
-    from hostsim.studies import report
-    from hostsim.studies import roa
-    from hostsim.studies import runner
-    from hostsim.sim.scenario import load_scenario
-
     ap = argparse.ArgumentParser(prog="python -m hostsim sim", description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", default=out_dir("sim"), help="output directory (default out/sim)")
     ap.add_argument("--scenarios", nargs="+", default=list(SCENARIOS),
@@ -98,6 +92,40 @@ def main(argv=None):
     ap.add_argument("--no-margins", action="store_true", help="skip the margins and the effects' costs")
     ap.add_argument("--jobs", type=int, default=None, help="worker processes (default: all cores)")
     args = ap.parse_args(argv)
+    final = args.out
+    # the new report is made beside the old one and swapped in at the end: an interrupted or
+    # failed study leaves the previous report whole
+    args.out = os.path.join(os.path.dirname(os.path.abspath(final)), "." + os.path.basename(final) + ".new")
+    shutil.rmtree(args.out, ignore_errors=True)
+    try:
+        code = _study(args, final)
+    except KeyboardInterrupt:
+        shutil.rmtree(args.out, ignore_errors=True)
+        print("sim: interrupted: nothing new written; %s keeps the previous report" % final, file=sys.stderr)
+        return 130
+    except BaseException:
+        shutil.rmtree(args.out, ignore_errors=True)
+        raise
+    return code
+
+
+def _swap_in(new, final):
+    """Replace the directory ``final`` by ``new`` (the old one removed after the swap)."""
+    old = new[:-len(".new")] + ".old"
+    shutil.rmtree(old, ignore_errors=True)
+    if os.path.exists(final):
+        os.rename(final, old)
+    os.rename(new, final)
+    shutil.rmtree(old, ignore_errors=True)
+
+
+def _study(args, final):
+    from hostsim.studies import margins
+    from hostsim.studies import montecarlo
+    from hostsim.studies import report
+    from hostsim.studies import roa
+    from hostsim.studies import runner
+    from hostsim.sim.scenario import load_scenario
 
     def say(msg):
         print(msg, file=sys.stderr, flush=True)
@@ -141,8 +169,10 @@ def main(argv=None):
     if load_docs:
         notes.append("## Payloads on link 3 and slopes (issue 22)\n\nThe realistic brick with `physical` gains; "
                      "each scenario's files under its own directory.\n\n" + load_table(load_docs) + "\n")
-    path = report.write_report(args.out, docs, roa_res, mc_res, extra_notes=notes, firmware_note=note,
-                               mc_brick=mc_brick, margins=margins_res)
+    report.write_report(args.out, docs, roa_res, mc_res, extra_notes=notes, firmware_note=note,
+                        mc_brick=mc_brick, margins=margins_res)
+    _swap_in(args.out, final)
+    path = os.path.join(final, "report.md")
     for doc in docs:
         print(runner.format_summary(doc))
         print()
