@@ -294,7 +294,7 @@ def test_the_start_line_says_which_scheduling_the_run_got():
 def test_no_realtime_request_at_priority_0():
     loop, _, _ = make_loop(VirtualClock(), duration_s=0.05, realtime_priority=0)
     assert loop.run().realtime == {'requested_priority': 0, 'granted': False, 'error': 'not requested',
-                                   'rtprio_limit': None}
+                                   'errno': None, 'rtprio_limit': None}
 
 
 def test_balances_the_simulated_robot_in_lock_step():

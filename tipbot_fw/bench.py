@@ -192,8 +192,8 @@ def run_memory(n_ticks, gains=None, bare=False, sender=None, whole=False):
     config = defaults()
     if gains is None:
         gains = synthetic_gains()
-    root = tempfile.mkdtemp(prefix='tipbot-bench-') if whole else None
-    dev = FileDevices(root).devices if whole else bench_devices()
+    files = FileDevices.in_temporary_dir() if whole else None
+    dev = files.devices if whole else bench_devices()
     core = make_core(gains, config, dev.counts_per_rot)
     core.set_gyro_bias(0.0)
     extra = {}
@@ -224,9 +224,8 @@ def run_memory(n_ticks, gains=None, bare=False, sender=None, whole=False):
     try:
         stats = loop.run()
     finally:
-        if whole:
-            dev.close()
-            shutil.rmtree(root, ignore_errors=True)
+        if files is not None:
+            files.close()
     if writer is not None:
         log.count = stats.ticks
         log.flush()
@@ -386,14 +385,27 @@ class FileDevices(object):
         dev._open(root)
         dev._set_up(stop_action)
         self.devices = dev
+        self.root = None
+
+    @classmethod
+    def in_temporary_dir(cls):
+        """FileDevices on files in a new temporary directory, removed by close()."""
+        root = tempfile.mkdtemp(prefix='tipbot-bench-')
+        files = cls(root)
+        files.root = root
+        return files
+
+    def close(self):
+        self.devices.close()
+        if self.root is not None:
+            shutil.rmtree(self.root, ignore_errors=True)
 
 
 def run_device_layer(n_ticks):
     """n_ticks of one read_raw and one write_duties that changes all four duties (the worst
     case) on FileDevices: the device layer's cost per tick, beside the tick's own."""
-    import tempfile
-    root = tempfile.mkdtemp(prefix='tipbot-bench-')
-    dev = FileDevices(root).devices
+    files = FileDevices.in_temporary_dir()
+    dev = files.devices
     read, write = dev.read_raw, dev.write_duties
     a, b = _PATTERNS
     try:
@@ -403,7 +415,7 @@ def run_device_layer(n_ticks):
             read()
             write(b)
     finally:
-        dev.close()
+        files.close()
 
 
 def main(argv=None):
@@ -433,7 +445,7 @@ def main(argv=None):
             sys.stderr.write(usage + '\n')
             return 2
         args = args[2:]
-    if n_ticks is None:
+    if n_ticks is None or (whole and bare):
         sys.stderr.write(usage + '\n')
         return 2
     if device_layer:
@@ -444,9 +456,6 @@ def main(argv=None):
         gains_path = REPO_GAINS
     gains = load_gains(gains_path) if gains_path else None
     sender, sink = local_sender(every) if every else (None, None)
-    if whole and bare:
-        sys.stderr.write(usage + '\n')
-        return 2
     stats, _ = run_memory(n_ticks, gains, bare, sender, whole)
     if stats.ticks != n_ticks + 1:
         sys.stderr.write('bench: the loop stopped after {} ticks\n'.format(stats.ticks))

@@ -7,8 +7,9 @@ the wheels drive" cannot be the cue: the firmware says when.
 Words go to stdout (brickrun and brickman's File Browser show a program's stdout on the
 brick's screen) and to stderr (with the firmware's other messages, over ssh: `make run`), once
 if both are the same terminal. Started over ssh (SSH_CONNECTION in the environment) stdout is
-not the brick's screen but a second channel of the same session: the words go to stderr only. Why a run stopped is already on stderr (the session's "stopped:"
-line), so its short form goes to the screen only.
+not the brick's screen but a second channel of the same session: the words go to stderr only.
+Why a run stopped is already on stderr (the session's "stopped:" line), so its short form goes
+to the screen only.
 
 Lights and tones (tipbot_fw.feedback; each state's light pair and melody are there) never touch
 a control tick: "hold" plays before the gyro calibration, a stop reason after the motors are

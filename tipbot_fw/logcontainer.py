@@ -218,7 +218,7 @@ class LogWriter(object):
         """TAIL (after the ring's last slot, if any), cut the file to its end, fsync, close.
         Never raises; -> None or the problem."""
         if self.closed:
-            return self.failed
+            return self.lost or self.failed
         if self.ring_entered:
             self.pos = self.ring_start + self.slots * self.slot_bytes
         self._record(TAIL, _json_bytes(trailer))

@@ -5,6 +5,7 @@ grants the robot user that limit (a pam_limits file: ssh and login sessions), an
 ``tipbot.service`` grants it with ``LimitRTPRIO=``; a session whose soft limit is below its hard
 one (``ulimit -Sr``) is raised to the hard limit here first, as any process may do itself.
 """
+import errno
 import os
 
 try:
@@ -31,9 +32,9 @@ def _raise_soft_rtprio(priority):
 
 def ask_fifo(priority):
     """Switch this process to SCHED_FIFO at ``priority`` (<= 0: don't). -> (info, restore):
-    info = {'requested_priority', 'granted', 'error', 'rtprio_limit'} for the log and the start
-    line; restore() puts back the scheduling it had."""
-    info = {'requested_priority': priority, 'granted': False, 'error': None, 'rtprio_limit': None}
+    info = {'requested_priority', 'granted', 'error', 'errno', 'rtprio_limit'} for the log and
+    the start line (refused(info): the kernel said EPERM); restore() puts back the scheduling it had."""
+    info = {'requested_priority': priority, 'granted': False, 'error': None, 'errno': None, 'rtprio_limit': None}
     if priority <= 0 or not hasattr(os, 'sched_setscheduler'):
         info['error'] = 'not requested' if priority <= 0 else 'not supported on this platform'
         return info, lambda: None
@@ -45,7 +46,7 @@ def ask_fifo(priority):
         old_param = os.sched_getparam(0)
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
     except OSError as e:
-        info['error'] = str(e)
+        info['error'], info['errno'] = str(e), e.errno
         return info, lambda: None
     info['granted'] = True
 
@@ -55,3 +56,8 @@ def ask_fifo(priority):
         except OSError:
             pass
     return info, restore
+
+
+def refused(info):
+    """Was SCHED_FIFO asked for and not permitted (no rtprio limit granted: install.sh --rtprio)?"""
+    return info['errno'] == errno.EPERM

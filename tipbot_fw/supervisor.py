@@ -82,7 +82,7 @@ import time  # noqa: E402
 
 from tipbot_fw import heartbeat as hb  # noqa: E402
 from tipbot_fw.config import MOTOR_ROLES, ConfigError, default_sysfs_root, load_config  # noqa: E402
-from tipbot_fw.realtime import ask_fifo  # noqa: E402
+from tipbot_fw.realtime import ask_fifo, refused  # noqa: E402
 from tipbot_fw.safety import EXIT_CONTROLLER_DIED, EXIT_INVALID, termination_signals  # noqa: E402
 
 TIMEOUT_S = 0.025
@@ -291,7 +291,7 @@ def _realtime(priority):
         return
     info, _ = ask_fifo(min(99, priority + 1))
     # not permitted: the controller's start line says so, for both, with what to do
-    if not info['granted'] and 'not permitted' not in (info['error'] or ''):
+    if not info['granted'] and not refused(info):
         say('no real-time priority ({}): a controller spinning at its own could starve this guard'.format(
             info['error']))
 
