@@ -148,6 +148,39 @@ def test_module_entry_point_runs():
     assert p.returncode == 0 and '143 terminated by a signal (SIGTERM' in p.stdout
 
 
+# numpy's C extension imports turn a KeyboardInterrupt raised inside them into an ImportError
+# (seen in CI: "PyCapsule_Import could not import module datetime"); this stand-in does the same
+INTERRUPTED_NUMPY = """
+import os, signal, time
+try:
+    os.kill(os.getpid(), signal.{})
+    time.sleep(5)
+except BaseException:
+    raise ImportError('PyCapsule_Import could not import module "datetime"')
+"""
+
+
+@pytest.mark.parametrize('sig, status, words', [('SIGINT', 130, 'interrupted'),
+                                                ('SIGTERM', 143, 'terminated by SIGTERM')])
+def test_a_signal_inside_numpys_import_is_one_line_not_a_traceback(tmp_path, sig, status, words):
+    (tmp_path / 'numpy').mkdir()
+    (tmp_path / 'numpy' / '__init__.py').write_text(INTERRUPTED_NUMPY.format(sig))
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(tmp_path), REPO]))
+    p = subprocess.run([sys.executable, '-m', 'tipbot_fw', 'run', '--gains', PHYSICAL_GAINS],
+                       cwd=REPO, env=env, stderr=subprocess.PIPE, universal_newlines=True, timeout=60)
+    assert p.returncode == status and 'Traceback' not in p.stderr, p.stderr
+    assert p.stderr.strip() == 'tipbot: {} while starting: nothing was started'.format(words)
+
+
+def test_an_import_error_without_a_signal_is_not_called_an_interrupt(tmp_path):
+    (tmp_path / 'numpy').mkdir()
+    (tmp_path / 'numpy' / '__init__.py').write_text('raise ImportError("numpy is broken here")\n')
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(tmp_path), REPO]))
+    p = subprocess.run([sys.executable, '-m', 'tipbot_fw', 'run', '--gains', PHYSICAL_GAINS],
+                       cwd=REPO, env=env, stderr=subprocess.PIPE, universal_newlines=True, timeout=60)
+    assert p.returncode == 1 and 'numpy is broken here' in p.stderr and 'interrupted' not in p.stderr
+
+
 def test_on_robot_bench_runs_against_any_devices():
     from tipbot_fw.bench import brick_bench
     from tipbot_fw.devices import MemoryDevices

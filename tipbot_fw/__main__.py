@@ -10,7 +10,12 @@ def _main():
     guard = SignalGuard().install()
     try:
         from tipbot_fw.cli import main
-    except (KeyboardInterrupt, Terminated) as e:
+    except (KeyboardInterrupt, Terminated, ImportError) as e:
+        if isinstance(e, ImportError):
+            if guard.raised is None:
+                raise
+            # a C extension's import (numpy's) turns the signal's exception into its ImportError
+            e = guard.raised
         sys.stderr.write('tipbot: {} while starting: nothing was started\n'.format(
             'interrupted' if isinstance(e, KeyboardInterrupt) else e))
         return 130 if isinstance(e, KeyboardInterrupt) else e.exit_code

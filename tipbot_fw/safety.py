@@ -177,6 +177,7 @@ class SignalGuard(object):
         self.ignored = 0
         self.heartbeat = heartbeat
         self.deferred = 0       # the signal kept by defer(), raised by arm()
+        self.raised = None      # the exception raised for the one signal that was raised
         self._previous = {}
 
     def exception(self, signum):
@@ -208,7 +209,8 @@ class SignalGuard(object):
             self.ignored += 1
             return
         self.armed = False
-        raise self.exception(signum)
+        self.raised = self.exception(signum)
+        raise self.raised
 
     def install(self):
         try:
@@ -225,7 +227,8 @@ class SignalGuard(object):
         signum = self.heartbeat.requested_signal() if self.heartbeat is not None else 0
         if signum and self.armed:
             self.armed = False
-            raise self.exception(signum)
+            self.raised = self.exception(signum)
+            raise self.raised
 
     def defer(self):
         """Keep a signal for the next arm() (only while armed: a disarmed guard only counts)."""
@@ -238,7 +241,8 @@ class SignalGuard(object):
         signum, self.deferred = self.deferred, 0
         if signum:
             self.armed = False
-            raise self.exception(signum)
+            self.raised = self.exception(signum)
+            raise self.raised
 
     def disarm(self):
         self.armed = False
@@ -277,7 +281,8 @@ def run_guarded(body, stop_motors, finish, say, guard=None):
             guard.arm()
             body()
         except BaseException as e:
-            error = e
+            # a signal inside a C extension's import (numpy's, loaded late) comes out as its ImportError
+            error = guard.raised if isinstance(e, ImportError) and guard.raised is not None else e
         finally:
             guard.disarm()
     finally:
