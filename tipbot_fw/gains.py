@@ -425,4 +425,37 @@ def _kalman_block(doc, f):
     k.state_bounds = f.check('kalman.law.state_bounds', law['state_bounds'], fields.numbers(n))
     if min(k.state_bounds) <= 0:
         f.fail('kalman.law.state_bounds', 'must be positive, got {!r}'.format(k.state_bounds))
+    k.reference = _reference_block(doc['reference'], f) if 'reference' in doc else None
     return k
+
+
+# The drive reference (hostsim.model.reference; optional: gains made before it cannot drive).
+REFERENCE_COLUMNS = ('v_r', 'v_l', 'a_r', 'a_l')
+REFERENCE_G_BOUND = 1e4
+# limit name -> its bounds: beyond any two-wheeled EV3 robot (Large motors: 0.6 m/s at most)
+REFERENCE_LIMITS = (('speed_mps', 2.0), ('accel_mps2', 10.0), ('jerk_mps3', 100.0), ('yaw_rate_dps', 1000.0),
+                    ('yaw_accel_dps2', 1e4), ('yaw_jerk_dps3', 1e5))
+
+
+class ReferenceGains(object):
+    """The validated `kalman.reference` block: G (4 x 4, V per m/s and m/s^2 of v_r, v_l, a_r,
+    a_l: the law's term K_a x_ref + u_ff), track_m and the command limits (a dict of floats)."""
+
+
+def _reference_block(doc, f):
+    f.check('kalman.reference', doc, fields.obj)
+    f.require(doc, ('columns', 'G', 'track_m', 'limits'), 'kalman.reference.')
+    if doc['columns'] != list(REFERENCE_COLUMNS):
+        f.fail('kalman.reference.columns', 'must be {!r}, got {!r}'.format(list(REFERENCE_COLUMNS), doc['columns']))
+    r = ReferenceGains()
+    r.G = np.array(f.check('kalman.reference.G', doc['G'], fields.matrix(4, 4)), dtype=float)
+    if not np.abs(r.G).max() <= REFERENCE_G_BOUND:
+        f.fail('kalman.reference.G', 'has an entry beyond +-{:g} V per m/s (committed: below 50)'.format(
+            REFERENCE_G_BOUND))
+    r.track_m = f.number('kalman.reference.track_m', doc['track_m'], lo=0.02, hi=1.0)
+    lim = f.check('kalman.reference.limits', doc['limits'], fields.obj)
+    r.limits = {}
+    for name, hi in REFERENCE_LIMITS:
+        f.require(lim, (name,), 'kalman.reference.limits.')
+        r.limits[name] = f.number('kalman.reference.limits.' + name, lim[name], lo=0.0, hi=hi)
+    return r

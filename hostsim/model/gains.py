@@ -27,6 +27,7 @@ import numpy as np
 from hostsim.errors import TipbotError
 from hostsim.model import design
 from hostsim.model import kalman
+from hostsim.model import reference
 from hostsim.model.equations import INPUT_NAMES, STATE_NAMES, RobotModel, Variant, get_variant, state_scale_to_si
 from hostsim.model.params import DEFAULT_PARAMS_PATH, load_params, params_hash
 from hostsim.paths import GAINS_DIR
@@ -70,6 +71,11 @@ NUMERIC_FIELDS = {
     "kalman.L": RTOL_WELL_CONDITIONED, "kalman.posterior_std": RTOL_WELL_CONDITIONED,
     "kalman.filter_eigenvalues_abs": RTOL_WELL_CONDITIONED,
     "kalman.K": RTOL_RICCATI, "kalman.law.M": RTOL_RICCATI,
+    # the drive reference: K's velocity columns times the motion, and the model's inputs for it
+    "kalman.reference.G": RTOL_RICCATI, "kalman.reference.U": RTOL_WELL_CONDITIONED,
+    "kalman.reference.lean_rad": RTOL_WELL_CONDITIONED,
+    **{"kalman.reference.limits." + name: RTOL_WELL_CONDITIONED for name in (
+        "speed_mps", "accel_mps2", "jerk_mps3", "yaw_rate_dps", "yaw_accel_dps2", "yaw_jerk_dps3")},
 }
 # Both designs must hold both model variants (kalman.UncertaintySet): the two bracket what is
 # least certain about the drivetrain (rotor inertia Jm from 0 to Table 2's value, the wheel
@@ -222,8 +228,18 @@ def to_document(g):
     }
     for key in ("A", "B", "C", "E", "K", "K_w", "L1", "L2", "G_w", "Q", "R"):
         doc[key] = _matrix(getattr(g, key))
-    doc["kalman"] = _rounded(g.kalman.document())
+    doc["kalman"] = _rounded(dict(g.kalman.document(), reference=drive_reference(g)))
     return doc
+
+
+def drive_reference(g):
+    """The Kalman block's drive reference (hostsim.model.reference) on the design's own model."""
+    ac, bc = g.model.linearize()
+    t = state_scale_to_si(g.variant)
+    ac_si, bc_si = t @ ac @ np.linalg.inv(t), t @ bc
+    params = g.model.params
+    return reference.reference_block(ac_si, bc_si[:, list(ACTUATED_INPUTS)], g.kalman.K, params["u_max_v"],
+                                     params["track_m"])
 
 
 def with_law(doc, k_file=None, k_w=None, note=""):
