@@ -14,7 +14,9 @@ from tipbot_fw.clock import MonotonicClock
 from tipbot_fw.config import (SYSFS_ROOT, SYSFS_ROOT_ENV, ConfigError, check_config_against_gains,
                               default_sysfs_root, load_config)
 from tipbot_fw.console import say as _say
+from tipbot_fw.course import CourseError, read_course
 from tipbot_fw.cues import OwnerCues
+from tipbot_fw.drive import drive_problem
 from tipbot_fw.feedback import BrickSignals
 from tipbot_fw.gains import GainsError, load_gains
 from tipbot_fw.session import log_refused_start, open_log, run_session
@@ -55,6 +57,9 @@ def _parser():
                     help='the gains file (JSON, made by make gains on the host: gains/physical.json; '
                     'the launcher passes the deployed gains.json)')
     sp.add_argument('--duration', metavar='S', type=_positive_float, help='stop after S seconds')
+    sp.add_argument('--course', metavar='FILE',
+                    help='drive the timed segments of this course file from the let-go cue, then stand '
+                         '(docs/course-format.md); without it the robot balances where it was let go')
     sp.add_argument('--log', metavar='FILE',
                     help='run log (default tipbot-YYYYmmdd-HHMMSS.log in logs/ if the current directory '
                     'holds tipbot_fw/, else in the current directory)')
@@ -138,7 +143,8 @@ def _main(argv, guard, hbt, supervisor_problem):
         if gains is not None:
             check_config_against_gains(config, gains, _config_source(args))
         telemetry = _telemetry(args)
-    except (ConfigError, GainsError, TelemetryError) as e:
+        course = _course(args, gains, config)
+    except (ConfigError, GainsError, TelemetryError, CourseError) as e:
         _say('refused to start: {}'.format(e))
         return safety.EXIT_INVALID
     cues = _cues(args)      # before the log: a signal now leaves no log behind to finish
@@ -156,6 +162,7 @@ def _main(argv, guard, hbt, supervisor_problem):
             except (KeyboardInterrupt, safety.Terminated) as e:
                 _refused(log, gains, config, args, e, guard, cues)
                 return safety.classify(e)[1]
+        args.course_segments = course
         return _start(args, config, gains, log, hbt, guard, cues, telemetry)
     finally:
         cues.close()
@@ -194,6 +201,16 @@ def _refused(log, gains, config, args, error, guard, cues):
     cues.stopped(reason, code)
 
 
+def _course(args, gains, config):
+    """The checked segments of --course (CourseError naming the file and field), or None."""
+    if getattr(args, 'course', None) is None:
+        return None
+    problem = drive_problem(gains, config)
+    if problem:
+        raise CourseError('{}: cannot drive: {}'.format(args.course, problem))
+    return read_course(args.course, gains.kalman.reference.limits)
+
+
 def _config_source(args):
     """How messages name the configuration: its file, or the defaults."""
     return args.config or 'the default configuration (tipbot_fw/default_config.json)'
@@ -229,7 +246,8 @@ def _run(args, config, gains, devices, log, hbt, guard, cues, telemetry):
         '' if hbt.supervised else ' (no supervisor: start with the launcher ev3/tipbot, or python3 -m '
         'tipbot_fw.supervisor -- run ..., to have the motors stopped whatever ends this process)'))
     code, header = run_session(devices, gains, config, MonotonicClock(), duration_s=args.duration, log=log,
-                               heartbeat=hbt, guard=guard, cues=cues, telemetry=telemetry)
+                               heartbeat=hbt, guard=guard, cues=cues, telemetry=telemetry,
+                               course=args.course_segments)
     if telemetry is not None:
         t = header['telemetry']
         _say('telemetry: {} datagrams to {} (one every {} ticks), {} not sent{}'.format(

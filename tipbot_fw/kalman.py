@@ -46,6 +46,13 @@ the robot stands, so T m_k passes through unchanged). A^m is composed from the p
 made at construction, one matrix-vector product per set bit of m, in Python floats in a fixed
 order (IEEE-754: the same bits on any machine, so a replay still matches): about 1 ms on the
 brick for a stall of 60 periods, paid only after a stall.
+
+Driving (tipbot_fw.drive): the law tracks a moving reference, u = -K_a (x^ - x_ref) + u_ff. The
+reference's wheel positions d_ref enter as the wheel angles do with the other sign (the same
+law columns, in 1/REF_POS_STEPS of a count), its wheel speeds and accelerations r through the
+gains' feedforward G (hostsim.model.reference: K_a x_ref's other entries plus u_ff, per unit of
+r): six more integers in v, six more columns of M, zero in the filter's rows (the estimate is of
+the robot, wherever the reference is). Standing, they are zero and the tick is the same to the bit.
 """
 import math
 import struct
@@ -69,16 +76,25 @@ N_IN = 7                 # the counts' changes dcount_r, dcount_l; the counts fr
 # tipbot_fw.plausibility.EncoderBound with max_step = MAX_COUNT_STEP: a motor turns at most
 # ~30 rad/s, 0.15 rad = 9 counts per 5 ms, and the check refuses a jump beyond the hardware's
 # reach, at most this whatever the period or a late tick: more is a failed read); a wheel's count
-# from its zero (2^24 counts, 46,600 turns, 10 km: more than a charge of the battery at full
-# speed); a joint's count from its zero (the joint limit stops the run first, checked here
+# from its zero (2^23 counts, 23,300 turns, 5 km: more than a charge of the battery at full
+# speed; the drive reference's position has the same bound, the two together the 2^24 of the
+# firmware before the reference, so the row exponents are those of before); a joint's count from its zero (the joint limit stops the run first, checked here
 # before the product); the gyro's raw int16 rate (the loop's check: +-440 deg/s).
 DUTY_BOUND = 100
 WHEEL_STEP_BOUND = 2 ** 10
 MAX_COUNT_STEP = WHEEL_STEP_BOUND - 1
-WHEEL_COUNT_BOUND = 2 ** 24
+WHEEL_COUNT_BOUND = 2 ** 23
 JOINT_COUNT_BOUND = 2 ** 10
 GYRO_BOUND = 2 ** 15
 INPUT_BOUNDS = (WHEEL_STEP_BOUND,) * 2 + (WHEEL_COUNT_BOUND,) * 2 + (JOINT_COUNT_BOUND,) * 2 + (GYRO_BOUND,)
+# The drive reference (tipbot_fw.drive; zero while the robot stands): the wheels' reference
+# positions in 1/REF_POS_STEPS of a count from the zeros (a sub-count step: 0.1 mm/s at 5 ms is
+# 1/13 of a count a tick), their speeds and accelerations in 2^-REF_RATE_EXP m/s and m/s^2.
+# Bounds: the counts' own, 2 m/s and 16 m/s^2 (beyond the gains' limits, which the reference keeps).
+N_REF = len(logfile.REFERENCE_COLUMNS)
+REF_POS_STEPS = 256
+REF_RATE_EXP = 16
+REF_BOUNDS = (WHEEL_COUNT_BOUND * REF_POS_STEPS,) * 2 + (2 ** (1 + REF_RATE_EXP),) * 2 + (2 ** (4 + REF_RATE_EXP),) * 2
 # Battery range the row exponents are chosen for (the duty scaling depends on it): what an EV3
 # battery can read; the loop refuses any other reading before it reaches set_battery.
 BATTERY_RANGE_V = (BATTERY_MIN_V, BATTERY_MAX_V)
@@ -86,6 +102,7 @@ LAW_COLUMNS = ('u_r', 'u_l', 'u_th2', 'u_th3')      # then xi_*, dphi_r, dphi_l,
 MEASUREMENTS = ('phi_r', 'phi_l', 'th2', 'th3', 'gyro')
 
 _IN = struct.Struct('<7q')
+REF = struct.Struct('<6q')
 _HEAD = struct.Struct('<7q')          # duty_r..duty_3, xi_d_r, xi_d_l, xi_th1
 _DUTIES = struct.Struct('<4q')
 _ROW_FLOATS = struct.Struct('<3d')    # battery_v, flags, gyro_angle
@@ -224,9 +241,15 @@ class KalmanCore(object):
         meas = [self.rad_per_count[0], self.rad_per_count[1], self.rad_per_count[0], self.rad_per_count[1],
                 self.rad_per_count[2], self.rad_per_count[3], gyro_rad]
         self.meas_factor = meas
+        # the reference's columns of the law (module docstring, "Driving"), and SI per integer
+        self.law = np.hstack([kal.law_M, self._reference_columns(kal, n)])
+        self.ref_lsb = [self.rad_per_count[0] * kal.wheel_radius_m / REF_POS_STEPS,
+                        self.rad_per_count[1] * kal.wheel_radius_m / REF_POS_STEPS] + [2.0 ** -REF_RATE_EXP] * 4
+        self.drive = None       # a tipbot_fw.drive.DriveReference, or None: the robot stands
+        self.ref_pos_top = REF_BOUNDS[0] - 1
         lo, hi = BATTERY_RANGE_V
-        v_bounds = [DUTY_BOUND] * N_U + [2.0 ** fx.STATE_BITS] * n + list(INPUT_BOUNDS)
-        m_abs = np.abs(kal.law_M) * np.array(self._col_factor(hi, abs_only=True))[None, :]
+        v_bounds = [DUTY_BOUND] * N_U + [2.0 ** fx.STATE_BITS] * n + list(INPUT_BOUNDS) + list(REF_BOUNDS)
+        m_abs = np.abs(self.law) * np.array(self._col_factor(hi, abs_only=True))[None, :]
         m_abs = m_abs * np.array([100.0 / lo] * N_U + [1.0] * n)[:, None]
         # the constant column: the start pose of the joints (|pose| <= 3.2 rad)
         const_bound = np.abs(kal.law_M[:, N_U + n + 4:N_U + n + 6]).dot([3.2, 3.2])
@@ -239,7 +262,7 @@ class KalmanCore(object):
         self.v_bounds = v_bounds + [1.0]
         self.shifts = np.array(self.shift_list, dtype=np.int64)
         # buffers: v (int64, the product's input, also the row's integer block), acc
-        self.n_v = N_U + n + N_IN + 1
+        self.n_v = N_U + n + N_IN + N_REF + 1
         self.v_bytes = bytearray(8 * self.n_v)
         self.v = np.frombuffer(self.v_bytes, dtype='<i8')
         self.v[self.n_v - 1] = 1
@@ -249,9 +272,11 @@ class KalmanCore(object):
         self.dot = self.M.dot
         self.rshift = np.right_shift
         self._in_off = 8 * (N_U + n)
-        self._row_ints = 8 * (N_U + n + N_IN)
+        self._ref_off = 8 * (N_U + n + N_IN)
+        self._row_ints = 8 * (N_U + n + N_IN + N_REF)
         self.rows = layout or self.row_layout(gains, config)
-        assert self.rows.q == self.q
+        assert self.rows.q == self.q and self.rows.has_reference
+        self.rows.ref_lsb = self.ref_lsb
         # metres of wheel travel per count (the wheel's angle from its zero in x^ = xi + T m)
         self.wheel_m = [wheel_m_per_count(kal.wheel_radius_m, self.polarity[i], self.counts_per_rot[i]) for i in (0, 1)]
         lim = config['limits']
@@ -287,11 +312,27 @@ class KalmanCore(object):
             out += [lo, hi]
         return tuple(out)
 
+    @staticmethod
+    def _reference_columns(kal, n):
+        """The law's columns of the reference (SI: per rad of wheel angle, per m/s, per m/s^2):
+        the reference positions act on the duties exactly as the wheel angles do, with the other
+        sign (u = -K_a (x^ - x_ref): the same columns of the law); the speeds and accelerations
+        by the gains' feedforward G. The filter's rows have none: the estimate is the robot's."""
+        ref = np.zeros((N_U + n, N_REF))
+        counts = N_U + n + 2
+        ref[:N_U, 0:2] = -kal.law_M[:N_U, counts:counts + 2]
+        if kal.reference is not None:
+            ref[:N_U, 2:] = kal.reference.G
+        return ref
+
     def _col_factor(self, battery_v, abs_only=False):
         pol = (1, 1, 1, 1) if abs_only else self.polarity
         f = [pol[i] * battery_v / 100.0 for i in range(N_U)]
         f += [2.0 ** -e for e in self.q]
         f += [abs(x) for x in self.meas_factor] if abs_only else list(self.meas_factor)
+        ref = [self.meas_factor[2] / REF_POS_STEPS, self.meas_factor[3] / REF_POS_STEPS]
+        f += [abs(x) for x in ref] if abs_only else ref
+        f += [2.0 ** -REF_RATE_EXP] * (N_REF - 2)
         return f
 
     def set_gyro_bias(self, gyro_bias_dps):
@@ -308,8 +349,7 @@ class KalmanCore(object):
         self.dlim = min(100, int(round(self.u_max_v * 100.0 / battery_v)))
         n = self.n
         rowf = [self.polarity[i] * 100.0 / battery_v for i in range(N_U)] + [1.0] * n
-        law = self.kal.law_M
-        self.M[:, :self.n_v - 1] = fx.quantize(law, self._col_factor(battery_v), rowf, self.row_exp)
+        self.M[:, :self.n_v - 1] = fx.quantize(self.law, self._col_factor(battery_v), rowf, self.row_exp)
         self.scale_row_f = rowf
         self.M[:, self.n_v - 1] = self._constant_column(rowf)
         self._check_range()
@@ -374,6 +414,8 @@ class KalmanCore(object):
         d1 = r1 - p1
         j2lo, j2hi, j3lo, j3hi = self.joint_bounds
         _IN.pack_into(self.v_bytes, self._in_off, d0, d1, r0, r1, r2, r3, gyro[1])
+        if self.drive is not None:
+            REF.pack_into(self.v_bytes, self._ref_off, *self.drive.advance())
         if not (j2lo <= r2 <= j2hi and j3lo <= r3 <= j3hi):
             # stop before the product: beyond the limits the fixed-point range is not assured
             return self._row(JOINT_LIMIT, gyro[0], buf, offset)
@@ -421,6 +463,8 @@ class KalmanCore(object):
         log's flags (logfile.SKIP_SHIFT)."""
         if periods <= 0:
             return
+        if self.drive is not None:
+            self.drive.skip(periods)        # the reference follows the clock, not the ticks
         n = self.n
         v = self.v
         lsb = self.state_lsb
@@ -440,6 +484,16 @@ class KalmanCore(object):
         for i in (0, 1):
             xi[i] += self.wheel_m[i] * int(self.v[N_U + n + 2 + i])
         return xi
+
+    def reference(self):
+        """The drive reference of the last tick (SI: d_r, d_l, v_r, v_l, a_r, a_l; zeros when
+        the robot stands)."""
+        base = N_U + self.n + N_IN
+        return [int(self.v[base + i]) * self.ref_lsb[i] for i in range(N_REF)]
+
+    def set_reference(self, ints):
+        """The reference's integers for the next tick, as a logged row holds them (replay)."""
+        REF.pack_into(self.v_bytes, self._ref_off, *ints)
 
     @property
     def duties(self):

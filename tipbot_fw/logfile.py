@@ -146,12 +146,19 @@ def kalman_columns(state_names, state_units):
             + [('xi_' + s, u) for s, u in zip(state_names, state_units)])
 
 
+# The Kalman core's drive reference (tipbot_fw.kalman, tipbot_fw.drive): the file's columns
+# after the state's; a log of a firmware before it has none.
+REFERENCE_COLUMNS = (('ref_d_r', 'm'), ('ref_d_l', 'm'), ('ref_v_r', 'm/s'), ('ref_v_l', 'm/s'),
+                     ('ref_a_r', 'm/s^2'), ('ref_a_l', 'm/s^2'))
+
+
 class KalmanRows(object):
     """The Kalman core's log row (tipbot_fw.kalman; docs/log-format.md). In memory: the two clock
     readings, battery_v, flags, gyro_angle as float64, then int64s: the duties, the carried state
     xi (xi_j 2^q_j: q, the state_exponents of tipbot_fw.fixedpoint) and the product's inputs
     (the wheels' count changes, the four counts from their zeros, the gyro's raw rate): one copy
-    of the core's integer vector. In the file: the raw counts, the duties and xi in SI.
+    of the core's integer vector, and the drive reference's integers (has_reference; ref_lsb: SI
+    per integer, set by the core). In the file: the raw counts, the duties, xi and the reference in SI.
 
     offsets: the encoder zeros (the first tick's counts), set by the core's first tick or read
     from the log; the file's enc_* columns are the counts from them plus them."""
@@ -160,7 +167,8 @@ class KalmanRows(object):
     ints_start = 5
     n_inputs = 7
 
-    def __init__(self, state_names, state_units, state_exponents, offsets=None):
+    def __init__(self, state_names, state_units, state_exponents, offsets=None, has_reference=True,
+                 ref_lsb=None):
         self.state_names = list(state_names)
         self.state_units = list(state_units)
         self.n = n = len(self.state_names)
@@ -171,8 +179,13 @@ class KalmanRows(object):
         self.mem_names = (['t_start', 't_written', 'battery_v', 'flags', 'gyro_angle']
                           + ['duty_r', 'duty_l', 'duty_2', 'duty_3'] + ['xi_' + s for s in self.state_names]
                           + ['dcount_r', 'dcount_l', 'rel_r', 'rel_l', 'rel_2', 'rel_3', 'gyro_rate'])
-        self.row_bytes = 8 * len(self.mem_names)
+        self.has_reference = has_reference
+        self.ref_lsb = ref_lsb
         self.columns = kalman_columns(self.state_names, self.state_units)
+        if has_reference:
+            self.mem_names += [name for name, _ in REFERENCE_COLUMNS]
+            self.columns += list(REFERENCE_COLUMNS)
+        self.row_bytes = 8 * len(self.mem_names)
         self.column_names = [c[0] for c in self.columns]
         self.offsets = offsets
 
@@ -184,8 +197,11 @@ class KalmanRows(object):
     def header(self):
         """What a reader needs to know of this layout, for the log's header (the encoder zeros
         follow with the first rows)."""
-        return {'estimator': self.estimator, 'state_names': self.state_names, 'state_units': self.state_units,
-                'fixed_point': {'state_exponents': self.q}}
+        doc = {'estimator': self.estimator, 'state_names': self.state_names, 'state_units': self.state_units,
+               'fixed_point': {'state_exponents': self.q}}
+        if self.has_reference:
+            doc['reference'] = {'columns': [name for name, _ in REFERENCE_COLUMNS], 'lsb': self.ref_lsb}
+        return doc
 
     @classmethod
     def from_header(cls, header):
@@ -199,7 +215,15 @@ class KalmanRows(object):
         if offsets is not None and not (isinstance(offsets, list) and len(offsets) == 4
                                         and all(isinstance(z, int) and abs(z) < 2 ** 53 for z in offsets)):
             raise ValueError('encoder_offsets must be 4 integers')
-        return cls(names, units, q, offsets)
+        ref = header.get('reference')
+        if ref is not None:
+            lsb = ref.get('lsb') if isinstance(ref, dict) else None
+            if not (ref.get('columns') == [name for name, _ in REFERENCE_COLUMNS] and isinstance(lsb, list)
+                    and len(lsb) == len(REFERENCE_COLUMNS) and all(isinstance(v, float) for v in lsb)):
+                raise ValueError('reference must name the columns {} and their lsb (numbers)'.format(
+                    [name for name, _ in REFERENCE_COLUMNS]))
+            return cls(names, units, q, offsets, True, lsb)
+        return cls(names, units, q, offsets, False)
 
     def to_file(self, mem_rows, t0=0.0):
         """In-memory rows (a float64 view, k x len(mem_names)) -> file rows (float64)."""
@@ -218,7 +242,16 @@ class KalmanRows(object):
         out[:, 9] = mem[:, 3]
         out[:, 10:14] = ints[:, 0:4]
         out[:, 14:14 + n] = ints[:, 4:4 + n] * self.state_lsb[None, :]
+        if self.has_reference:
+            nr = len(REFERENCE_COLUMNS)
+            out[:, 14 + n:14 + n + nr] = ints[:, 4 + n + self.n_inputs:4 + n + self.n_inputs + nr] * np.array(
+                self.ref_lsb or [0.0] * nr)[None, :]
         return out
+
+    def reference_ints(self, file_row):
+        """The reference's integers of a file row (the inverse of to_file's SI, exact)."""
+        base = self.col('ref_d_r')
+        return [int(round(file_row[base + i] / lsb)) if lsb else 0 for i, lsb in enumerate(self.ref_lsb)]
 
     def col(self, name):
         return self.column_names.index(name)

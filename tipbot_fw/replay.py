@@ -49,10 +49,16 @@ def replay(header, rows, gains, check_gains=True):
     flags = layout.col('flags')
     readings = _reader(layout)
     starts = dict(logfile.segment_rows(header, len(rows)))
+    # the drive reference the run followed, from its log (a log of a firmware before it has none:
+    # its columns end before the reference's)
+    driven = getattr(layout, 'has_reference', False) and 'reference' in header
+    width = out.shape[1]
     for i in range(len(rows)):
         enc, gyro, battery_v = readings(rows[i])
         if battery_v != core.battery_v:
             core.set_battery(battery_v)
+        if driven:
+            core.set_reference(layout.reference_ints(rows[i]))
         loops = int(rows[i, flags]) & loop_bits
         if i not in starts:
             core.step(enc, gyro, one.data, 0)
@@ -62,7 +68,7 @@ def replay(header, rows, gains, check_gains=True):
             core.restore(rows[i], header['encoder_offsets'])
             core.skip(loops >> logfile.SKIP_SHIFT)
             continue
-        out[i, 2:] = layout.to_file(one.mem)[0, 2:]
+        out[i, 2:] = layout.to_file(one.mem)[0, 2:width]
         # the overrun flag and the periods skipped after the tick are the loop's, not the core's;
         # the core predicted through those periods before the next tick, as on the robot
         out[i, flags] = int(out[i, flags]) | loops

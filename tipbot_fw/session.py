@@ -8,6 +8,7 @@ encoder zeros as they are learnt, the rows in chunks, the end of the run last. T
 fixed size (config log_max_rows): a longer run keeps its first log_head_rows rows and its last
 ones (logfile.keep_plan), and the run's last line names the ticks between them, not kept.
 """
+import math
 import sys
 import time
 
@@ -18,6 +19,7 @@ from tipbot_fw import logfile, slack
 from tipbot_fw.calibration import calibrate_gyro
 from tipbot_fw.core import make_core, row_layout
 from tipbot_fw.cues import OwnerCues
+from tipbot_fw.drive import drive_for
 from tipbot_fw.heartbeat import NOT_SUPERVISED
 from tipbot_fw.loop import ControlLoop
 from tipbot_fw.console import say
@@ -70,7 +72,7 @@ class BeatingClock(object):
 
 def run_session(devices, gains, config, clock, log_path=None, duration_s=None,
                 realtime_priority=None, say=say, cues=None, log=None, heartbeat=NOT_SUPERVISED, guard=None,
-                telemetry=None):
+                telemetry=None, course=None):
     """Balance until duration_s (None: until stopped). -> (exit code, log header dict).
 
     Never raises; devices.stop_all() is called on every exit (tipbot_fw.safety.run_guarded).
@@ -81,6 +83,8 @@ def run_session(devices, gains, config, clock, log_path=None, duration_s=None,
     sends the ticks' rows. Both work in the loop's slack (tipbot_fw.slack). ``heartbeat``: the
     supervisor's page, armed during the calibration and from the loop's first tick until the
     motors are stopped. ``guard``: the SignalGuard already installed (tipbot_fw.cli), or None.
+    ``course``: the segments of tipbot_fw.course (checked against the gains' limits) to drive
+    from the let-go cue, or None: the robot balances where it was let go.
     """
     cues = OwnerCues() if cues is None else cues
     if realtime_priority is None:
@@ -89,6 +93,8 @@ def run_session(devices, gains, config, clock, log_path=None, duration_s=None,
     header['counts_per_rot'] = list(devices.counts_per_rot)
     header['supervised'] = heartbeat.supervised
     header['first_tick'] = 0     # a file holds a run's rows from its first tick (and a long run's last ones)
+    if course is not None:
+        header['course'] = [{'speed_mps': v, 'yaw_rate_dps': math.degrees(w), 'duration_s': d} for v, w, d in course]
     layout = row_layout(gains, config)
     if log is None and log_path:
         try:
@@ -110,6 +116,8 @@ def run_session(devices, gains, config, clock, log_path=None, duration_s=None,
         lim = config['limits']
         # the core first: its fixed-point format refuses a configuration before anything moves
         core = run['core'] = make_core(gains, config, devices.counts_per_rot, layout)
+        if course is not None:
+            core.drive = drive_for(gains, core, course)
         try:
             bv = devices.read_battery_v()
         except (OSError, ValueError) as e:

@@ -144,7 +144,10 @@ def expected_columns(header):
     names, units = header.get("state_names"), header.get("state_units")
     if not isinstance(names, list) or not isinstance(units, list):
         return []
-    return [c[0] for c in logfile.kalman_columns(names, units)]
+    columns = [c[0] for c in logfile.kalman_columns(names, units)]
+    if "reference" in header:       # the drive reference (a firmware before it logged none)
+        columns += [c[0] for c in logfile.REFERENCE_COLUMNS]
+    return columns
 
 
 def check_content(path, header, rows, names):

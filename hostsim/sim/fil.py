@@ -60,10 +60,12 @@ from tipbot_fw import config as fw_config
 from tipbot_fw import logfile
 from tipbot_fw import replay as fw_replay
 from tipbot_fw.calibration import sample_counts
+from tipbot_fw.course import CourseError, parse_course
 from tipbot_fw.clock import VirtualClock
 from tipbot_fw.cues import QUIET as QUIET_CUES
 from tipbot_fw.cues import OwnerCues
 from tipbot_fw.devices import MemoryDevices
+from tipbot_fw.drive import drive_problem
 from tipbot_fw.feedback import BrickSignals
 from tipbot_fw.config import MOTOR_ROLES
 from tipbot_fw.gains import ACTUATED_INPUTS, gains_from_dict, load_gains
@@ -258,6 +260,7 @@ def run_firmware(sc, gains_path=None, gains_doc=None, sysfs=True, log_path=None,
     else:
         gains = load_gains(gains_path)
     config = firmware_config(sc, nominal["rw_m"], config_overrides)
+    course = _course(sc, gains, config)
     s = sc.sensors
     signs = tuple(config["polarity"][r] for r in MOTOR_ROLES)
     sensors = SensorModel(p["rw_m"], motor_signs=signs, gyro_sign=int(s.gyro_sign),
@@ -311,7 +314,8 @@ def run_firmware(sc, gains_path=None, gains_doc=None, sysfs=True, log_path=None,
                 world.start_at(clock.t)   # a blocking set-up (the gyro's mode write) took this long
             try:
                 code, header = run_session(devices, gains, config, clock, log=log,
-                                           duration_s=sc.duration_s, say=lambda msg: None, cues=cues)
+                                           duration_s=sc.duration_s, say=lambda msg: None, cues=cues,
+                                           course=course)
             finally:
                 cues.close()
                 devices.close()
@@ -338,6 +342,20 @@ def run_firmware(sc, gains_path=None, gains_doc=None, sysfs=True, log_path=None,
         out["duty_events"] = world.duty_events
     return RunResult(d_origin_m=d_origin, exit_code=code, stop_reason=header.get("stop_reason"), header=header,
                      completed=code == 0 and header.get("stop_reason") == "completed", **out)
+
+
+def _course(sc, gains, config):
+    """The scenario's course, checked against the gains' limits as the firmware's --course is."""
+    if sc.course is None:
+        return None
+    problem = drive_problem(gains, config)
+    doc = [{"speed_mps": v, "yaw_rate_dps": math.degrees(w), "duration_s": d} for v, w, d in sc.course]
+    try:
+        if problem:
+            raise CourseError("cannot drive: " + problem)
+        return parse_course(doc, "scenario %s" % sc.name, gains.kalman.reference.limits, "course")
+    except CourseError as e:
+        raise SimulationError(str(e))
 
 
 def friction_torques_nm(deadband_pct, params):

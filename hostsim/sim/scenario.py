@@ -42,6 +42,7 @@ from hostsim.model.params import REQUIRED
 from hostsim.paths import REPO_ROOT
 from tipbot_fw import config as fw_config
 from tipbot_fw import fields
+from tipbot_fw.course import CourseError, parse_course
 from tipbot_fw.plausibility import BATTERY_MAX_V, BATTERY_MIN_V
 
 SCENARIO_DIR = os.path.join(REPO_ROOT, "scenarios")
@@ -80,6 +81,7 @@ DEFAULTS = {
     "reference_governor": False,      # linear/nonlinear: the law follows hostsim.sim.governor's reference
     "payload": None,                  # a point mass on link 3 (Payload; nonlinear, firmware)
     "slope": None,                    # the floor's slope (Slope; nonlinear, firmware)
+    "course": None,                   # drive segments from the release (firmware; docs/course-format.md)
 }
 
 
@@ -271,6 +273,7 @@ class Scenario:
     reference_governor: bool
     payload: Optional[Payload] = None
     slope: Optional[Slope] = None
+    course: Optional[tuple] = None        # ((speed_mps, yaw_rate_rad_s, duration_s), ...)
 # expect: {"<mode>/<controller>": {key: bound}}; every bound is an upper limit except upright.
 EXPECT_KEYS = ("max_abs_th1_rad", "max_abs_th2_rad", "max_abs_th3_rad", "settle_time_s", "max_abs_u_v",
                "final_abs_d_m", "final_est_error", "upright")
@@ -393,6 +396,7 @@ def parse_scenario(doc, src="<scenario>"):
     f.check("reference_governor", sc["reference_governor"], fields.boolean)
     sc["payload"] = _payload(f, sc["payload"], sc["modes"])
     sc["slope"] = _slope(f, sc["slope"], sc["modes"])
+    sc["course"] = _course(f, sc["course"], sc["modes"], src)
     runs = {"%s/%s" % (m, c) for m in sc["modes"] for c in sc["controllers"]}
     for label, bounds in sc["expect"].items():
         name = "expect.%s" % label
@@ -482,6 +486,23 @@ def _slope(f, doc, modes):
     if hi <= lo:
         f.fail("slope.ramp_end_m", "must be beyond ramp_start_m (%r), got %r" % (lo, hi))
     return Slope(float(angle), float(lo), float(hi))
+
+
+# A course's bounds here are any robot's (tipbot_fw.gains.REFERENCE_LIMITS); the gains' own
+# limits are checked when the firmware loads it (hostsim.sim.fil), as the robot does.
+_ANY_ROBOT = {"speed_mps": 2.0, "yaw_rate_dps": 1000.0}
+
+
+def _course(f, doc, modes, src):
+    """The ``course`` list -> tuple of (speed_mps, yaw_rate_rad_s, duration_s) or None."""
+    if doc is None:
+        return None
+    if set(modes) != {"firmware"}:
+        f.fail("course", "drives the firmware only: modes must be [\"firmware\"], got %r" % (list(modes),))
+    try:
+        return tuple(parse_course(doc, src, _ANY_ROBOT, "course"))
+    except CourseError as e:
+        raise ScenarioError(str(e))
 
 
 def firmware_overrides(x0_si, gyro_sign, firmware_config, wheel_radius_m=None):
