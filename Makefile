@@ -164,7 +164,7 @@ deploy:
 # firmware stops the motors and writes its log).
 run:
 	$(need_host)
-	$(DEPLOY) run $(CONNECT) $(if $(DURATION),--duration $(DURATION)) -- $(RUN_ARGS)
+	$(DEPLOY) run $(CONNECT) $(if $(DURATION),--duration $(DURATION)) $(if $(COURSE),--course $(COURSE)) -- $(RUN_ARGS)
 
 # Fetches the run logs not yet here (and the brick's gains.json, as gains-<sha256>.json) into
 # logs/<host>/ (LOGS_DIR=... elsewhere).

@@ -32,7 +32,9 @@ def _profile(v, a, target, a_max, j_max, dt):
     e = target - v
     if -jdt * dt <= e <= jdt * dt and -jdt <= a <= jdt:
         return target, 0.0
-    to_go = e - a * abs(a) / (2.0 * j_max)
+    # what bringing a to zero adds, in whole periods of j_max dt less each (a^2/2j + a dt/2),
+    # and this period's own step
+    to_go = e - a * abs(a) / (2.0 * j_max) - a * dt * 1.5
     want = a_max if to_go > 0.0 else -a_max
     if abs(to_go) < jdt * dt:
         want = 0.0
@@ -44,7 +46,7 @@ def _profile(v, a, target, a_max, j_max, dt):
     a += da
     v += a * dt
     # a step that would cross the target at this acceleration stops on it
-    if (target - v) * e < 0.0 and abs(a) <= jdt:
+    if (target - v) * e < 0.0:
         v, a = target, 0.0
     return v, a
 

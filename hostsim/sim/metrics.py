@@ -75,6 +75,8 @@ def compute(run, sc, u_max_v):
         "settle_time_s": settle_time(t, th1, sc.settle_band_rad),
         "final_abs_th1_rad": _f(abs(th1[-1])),
         "final_abs_d_m": _f(np.max(np.abs(x[-1, :2] - origin))),
+        # the largest distance from the start during the run (issue 23: wander, not only its end)
+        "max_abs_d_m": _f(np.max(np.abs(x[:, :2] - origin))),
     }
     late = t >= min(JOINT_SETTLE_S, t[-1])
     m["joint_offset_rad"] = [_f(v) for v in np.max(np.abs(x[late][:, 3:5]), axis=0)]
@@ -105,7 +107,23 @@ def compute(run, sc, u_max_v):
         m["disturbed_peak_dev"] = [_f(v) for v in dev]
         m["disturbed_peak_abs_u_v"] = [_f(v) for v in udev]
     m.update(_estimation(run, t))
+    if getattr(sc, "course", None):
+        m["tracking"] = course_tracking(run, sc)
     return m
+
+
+def course_tracking(run, sc):
+    """How the simulated robot's true path (its wheels, integrated in the plane) followed the
+    scenario's course, timed from the release (hostsim.sim.tracking)."""
+    from hostsim.model.params import scaled_params
+    from hostsim.sim import tracking
+    track_m = scaled_params(sc.param_scale)["track_m"]
+    t, x = run.t_s, run.x
+    true = tracking.planar_path(t, x[:, 0], x[:, 1], track_m)
+    segments = [(v, math.degrees(w), d) for v, w, d in sc.course]
+    dt = float(np.median(np.diff(t))) if len(t) > 1 else 0.005
+    commanded = tracking.commanded_path(segments, 0.0, dt_s=dt, end_s=float(t[-1]))
+    return {k: _f(v) for k, v in tracking.tracking_metrics(true, commanded).items()}
 
 
 # Oscillation check: the strongest spectral line above OSC_MIN_HZ of each signal after the

@@ -1,0 +1,215 @@
+"""Driving (issue 21): the drive reference's profiles, course files, the core's tracking term,
+and a course run from the command line."""
+import json
+import math
+
+import numpy as np
+import pytest
+
+import fw_support as S
+from conftest import PAPER_GAINS, PHYSICAL_GAINS
+from hostsim.world.fake_ev3 import FakeEV3
+from tipbot_fw import cli
+from tipbot_fw.config import load_config
+from tipbot_fw.course import CourseError, parse_course, read_course
+from tipbot_fw.drive import DriveReference, drive_for
+from tipbot_fw.gains import load_gains
+from tipbot_fw.kalman import KalmanCore, N_U
+from tipbot_fw.logfile import read_log
+
+LIMITS = {'speed_mps': 0.25, 'accel_mps2': 0.6, 'jerk_mps3': 3.0, 'yaw_rate_dps': 100.0,
+          'yaw_accel_dps2': 300.0, 'yaw_jerk_dps3': 1500.0}
+DT = 0.005
+SI = [1e-9] * 6      # SI per integer: fine enough to read the profile back from the integers
+
+
+def profile(drive, seconds):
+    out = []
+    for _ in range(int(round(seconds / DT))):
+        drive.advance()
+        out.append((drive.s, drive.v, drive.a, drive.psi, drive.w, drive.al))
+    return np.array(out)
+
+
+def test_a_speed_command_is_reached_within_the_limits_without_overshoot():
+    d = DriveReference(LIMITS, 0.2, DT, SI)
+    d.command(0.2, 0.0)
+    p = profile(d, 2.0)
+    s, v, a = p[:, 0], p[:, 1], p[:, 2]
+    assert v[-1] == 0.2 and a[-1] == 0.0 and d.settled
+    assert v.max() <= 0.2 + 1e-12 and np.all(np.diff(v) >= -1e-12)       # no overshoot, no dip
+    assert np.abs(a).max() <= LIMITS['accel_mps2'] + 1e-12
+    assert np.abs(np.diff(a)).max() <= LIMITS['jerk_mps3'] * DT + 1e-12
+    assert np.allclose(np.diff(s), v[1:] * DT)
+
+
+def test_stop_brings_it_to_rest_and_a_course_covers_its_distance():
+    # ramps up and down are mirror images: the distance is speed x duration (to a tick's travel)
+    d = DriveReference(LIMITS, 0.2, DT, SI, course=[(0.2, 0.0, 3.0), (0.0, math.radians(90), 1.0)])
+    p = profile(d, 6.0)
+    assert p[-1, 1] == 0.0 and p[-1, 4] == 0.0 and d.settled and not d.course
+    assert p[-1, 0] == pytest.approx(0.6, abs=0.2 * DT * 2)
+    assert math.degrees(p[-1, 3]) == pytest.approx(90.0, abs=100 * DT * 2)
+    assert np.abs(p[:, 5]).max() <= math.radians(LIMITS['yaw_accel_dps2']) + 1e-9
+
+
+def test_commands_beyond_the_limits_are_clipped_to_them():
+    d = DriveReference(LIMITS, 0.2, DT, SI)
+    d.command(5.0, -10.0)
+    assert d.v_cmd == LIMITS['speed_mps'] and d.w_cmd == -math.radians(LIMITS['yaw_rate_dps'])
+
+
+def test_the_wheels_follow_distance_and_heading():
+    d = DriveReference(LIMITS, 0.2, DT, [1e-6] * 6)
+    d.command(0.1, 0.5)
+    for _ in range(400):
+        ints = d.advance()
+    half = 0.1
+    assert ints[0] * 1e-6 == pytest.approx(d.s + d.psi * half, abs=2e-6)
+    assert ints[1] * 1e-6 == pytest.approx(d.s - d.psi * half, abs=2e-6)
+    assert ints[2] * 1e-6 == pytest.approx(0.1 + 0.5 * half, abs=2e-6)
+    assert ints[3] * 1e-6 == pytest.approx(0.1 - 0.5 * half, abs=2e-6)
+
+
+def test_a_stall_moves_the_reference_on_by_its_periods():
+    a, b = DriveReference(LIMITS, 0.2, DT, SI), DriveReference(LIMITS, 0.2, DT, SI)
+    for d in (a, b):
+        d.command(0.2, 0.0)
+    for _ in range(100):
+        a.advance()
+    for _ in range(40):
+        b.advance()
+    b.skip(59)
+    b.advance()
+    assert (b.s, b.v, b.ticks) == (a.s, a.v, a.ticks)
+
+
+# -- course files
+def write(tmp_path, doc, name='course.json'):
+    p = tmp_path / name
+    p.write_text(json.dumps(doc))
+    return str(p)
+
+
+def test_a_course_file_reads_as_segments(tmp_path):
+    path = write(tmp_path, [{'speed_mps': 0.2, 'yaw_rate_dps': 0, 'duration_s': 5},
+                            {'speed_mps': 0, 'yaw_rate_dps': -90, 'duration_s': 1}])
+    assert read_course(path, LIMITS) == [(0.2, 0.0, 5.0), (0.0, math.radians(-90), 1.0)]
+
+
+@pytest.mark.parametrize('doc, words', [
+    ({'speed_mps': 0.1}, 'must be a JSON list of segments'),
+    ([], 'must be a JSON list of segments'),
+    ([{'speed_mps': 0.1, 'yaw_rate_dps': 0}], 'field [0].duration_s is missing'),
+    ([{'speed_mps': 0.1, 'yaw_rate_dps': 0, 'duration_s': 1, 'turbo': 1}], 'field [0].turbo is unknown'),
+    ([{'speed_mps': 0.1, 'yaw_rate_dps': 0, 'duration_s': 1},
+      {'speed_mps': 0.3, 'yaw_rate_dps': 0, 'duration_s': 1}], 'field [1].speed_mps must be a number in [-0.25, 0.25]'),
+    ([{'speed_mps': 0, 'yaw_rate_dps': 120, 'duration_s': 1}], 'field [0].yaw_rate_dps must be a number in'),
+    ([{'speed_mps': 0.2, 'yaw_rate_dps': 50, 'duration_s': 1}], 'field [0].speed_mps and yaw_rate_dps together ask '
+                                                                'for 130 % of the drive budget'),
+    ([{'speed_mps': 0.1, 'yaw_rate_dps': 0, 'duration_s': 0}], 'field [0].duration_s must be a number in (0.0'),
+    ([{'speed_mps': True, 'yaw_rate_dps': 0, 'duration_s': 1}], 'field [0].speed_mps must be a number'),
+])
+def test_a_course_the_robot_cannot_do_is_refused_by_file_and_field(tmp_path, doc, words):
+    path = write(tmp_path, doc)
+    with pytest.raises(CourseError) as e:
+        read_course(path, LIMITS)
+    msg = str(e.value)
+    assert msg.startswith(path + ': ') and words in msg and '\n' not in msg, msg
+
+
+def test_a_course_in_another_file_is_named_by_its_field():
+    with pytest.raises(CourseError, match=r'^s.json: field course\[0\].speed_mps must be'):
+        parse_course([{'speed_mps': 9, 'yaw_rate_dps': 0, 'duration_s': 1}], 's.json', LIMITS, 'course')
+    with pytest.raises(CourseError, match=r'^s.json: field course must be a JSON list'):
+        parse_course({}, 's.json', LIMITS, 'course')
+
+
+# -- the core's tracking term
+@pytest.fixture(scope='module')
+def physical():
+    return load_gains(PHYSICAL_GAINS)
+
+
+def core_pair(gains):
+    config = load_config()
+    cores = [KalmanCore(gains, config) for _ in range(2)]
+    for c in cores:
+        c.set_gyro_bias(0.0)
+        c.set_battery(8.0)
+        buf = bytearray(c.rows.row_bytes)
+        c.start((0, 0, 0, 0), (0, 0), buf, 0)
+    return cores, bytearray(cores[0].rows.row_bytes)
+
+
+def test_standing_the_reference_changes_nothing(physical):
+    (a, b), buf = core_pair(physical)
+    b.drive = drive_for(physical, b)       # a drive reference that is never commanded
+    rng = np.random.default_rng(0)
+    for k in range(200):
+        enc = tuple(int(v) for v in rng.integers(-3, 4, size=4))
+        gyro = (0, int(rng.integers(-20, 21)))
+        assert a.step(enc, gyro, buf, 0) == b.step(enc, gyro, buf, 0)
+    assert list(a.v) == list(b.v)
+
+
+def test_the_reference_enters_the_duties_as_the_law_says(physical):
+    """u = -K_a (x^ - x_ref) + u_ff: the duties move by K_a's wheel-position columns times the
+    reference positions plus G r, to the duty's rounding; the filter's state does not move."""
+    (a, b), buf = core_pair(physical)
+    ref = physical.kalman.reference
+    d_ref, r = np.array([0.01, -0.004]), np.array([0.1, 0.05, 0.2, -0.1])
+    ints = [int(round(d_ref[i] / b.ref_lsb[i])) for i in (0, 1)] + [int(round(r[i] / b.ref_lsb[2 + i]))
+                                                                   for i in range(4)]
+    b.set_reference(ints)
+    da, _ = a.step((1, 2, 0, 0), (0, 3), buf, 0)
+    db, _ = b.step((1, 2, 0, 0), (0, 3), buf, 0)
+    k_a = physical.kalman.K
+    volts = k_a[:, 0:2].dot(d_ref) + ref.G.dot(r)
+    expected = [volts[i] * 100.0 / 8.0 * b.polarity[i] for i in range(N_U)]
+    assert all(abs((db[i] - da[i]) - expected[i]) <= 1.0 for i in range(N_U)), (da, db, expected)
+    assert max(abs(e) for e in expected) > 5       # a test that sees the term
+    assert list(a.v[N_U:N_U + a.n]) == list(b.v[N_U:N_U + b.n])
+
+
+def test_gains_without_a_reference_cannot_drive(tmp_path, capsys):
+    doc = json.load(open(PHYSICAL_GAINS))
+    del doc['kalman']['reference']
+    old = S.write_json(tmp_path / 'old.json', doc)
+    course = write(tmp_path, [{'speed_mps': 0.1, 'yaw_rate_dps': 0, 'duration_s': 1}])
+    assert cli.main(['run', '--gains', old, '--course', course, '--sysfs-root', str(tmp_path / 'none')]) == 2
+    err = capsys.readouterr().err
+    assert 'cannot drive' in err and 'kalman.reference' in err and 'make gains' in err
+
+
+# -- a course run from the command line
+@pytest.fixture
+def fake(tmp_path):
+    f = FakeEV3(str(tmp_path / 'sys'), battery_v=8.2)
+    f.set_readings((0, 0, 0, 0))
+    yield f
+    f.close()
+
+
+def test_run_with_a_course_logs_the_reference_and_replays_exactly(fake, tmp_path, capsys):
+    from tipbot_fw.replay import replay
+    config = S.write_json(tmp_path / 'quick.json',
+                          {'realtime_priority': 0, 'gyro_calibration': {'settle_s': 0.05, 'duration_s': 0.05}})
+    course = write(tmp_path, [{'speed_mps': 0.2, 'yaw_rate_dps': 10, 'duration_s': 0.3}])
+    log = str(tmp_path / 'run.log')
+    code = cli.main(['run', '--gains', PHYSICAL_GAINS, '--config', config, '--duration', '0.4',
+                     '--log', log, '--sysfs-root', fake.sysfs_root, '--course', course])
+    assert code == 0, capsys.readouterr().err
+    header, rows = read_log(log)
+    assert header['course'] == [{'speed_mps': 0.2, 'yaw_rate_dps': pytest.approx(10.0), 'duration_s': 0.3}]
+    names = [c['name'] for c in header['columns']]
+    v_r = rows[:, names.index('ref_v_r')]
+    assert v_r[0] == 0 and 0 < v_r.max() < 0.2 + 10 * math.pi / 180 * 0.13     # ramping up
+    assert rows[-1, names.index('ref_d_r')] > rows[-1, names.index('ref_d_l')] > 0   # turning left
+    again = replay(header, rows, load_gains(PHYSICAL_GAINS))
+    assert np.array_equal(again[:, 2:], rows[:, 2:])
+
+
+def test_the_paper_gains_drive_too(capsys, tmp_path):
+    g = load_gains(PAPER_GAINS)
+    assert g.kalman.reference is not None and g.kalman.reference.limits['speed_mps'] > 0.1
