@@ -12,7 +12,7 @@ from hostsim.world.fake_ev3 import FakeEV3
 from tipbot_fw import cli
 from tipbot_fw.config import load_config
 from tipbot_fw.course import CourseError, parse_course, read_course
-from tipbot_fw.drive import DriveReference, drive_for
+from tipbot_fw.drive import course_plan, plan_for, transition_s
 from tipbot_fw.gains import load_gains
 from tipbot_fw.kalman import KalmanCore, N_U
 from tipbot_fw.logfile import read_log
@@ -20,68 +20,65 @@ from tipbot_fw.logfile import read_log
 LIMITS = {'speed_mps': 0.25, 'accel_mps2': 0.6, 'jerk_mps3': 3.0, 'yaw_rate_dps': 100.0,
           'yaw_accel_dps2': 300.0, 'yaw_jerk_dps3': 1500.0}
 DT = 0.005
-SI = [1e-9] * 6      # SI per integer: fine enough to read the profile back from the integers
+LSB = [1e-9] * 6      # SI per integer: fine enough to read the plan back from its integers
+TOP = 2 ** 62
+H = 0.2
 
 
-def profile(drive, seconds):
-    out = []
-    for _ in range(int(round(seconds / DT))):
-        drive.advance()
-        out.append((drive.s, drive.v, drive.a, drive.psi, drive.w, drive.al))
-    return np.array(out)
+def plan_si(course):
+    rows = np.frombuffer(course_plan(course, LIMITS, H, DT, LSB, TOP), dtype='<i8').reshape(-1, 6)
+    return rows * 1e-9      # d_r, d_l, v_r, v_l, a_r, a_l per tick from tick 1
 
 
-def test_a_speed_command_is_reached_within_the_limits_without_overshoot():
-    d = DriveReference(LIMITS, 0.2, DT, SI)
-    d.command(0.2, 0.0)
-    p = profile(d, 2.0)
-    s, v, a = p[:, 0], p[:, 1], p[:, 2]
-    assert v[-1] == 0.2 and a[-1] == 0.0 and d.settled
-    assert v.max() <= 0.2 + 1e-12 and np.all(np.diff(v) >= -1e-12)       # no overshoot, no dip
-    assert np.abs(a).max() <= LIMITS['accel_mps2'] + 1e-12
-    assert np.abs(np.diff(a)).max() <= LIMITS['jerk_mps3'] * DT + 1e-12
-    assert np.allclose(np.diff(s), v[1:] * DT)
+def forward_and_yaw(p):
+    return (p[:, 0] + p[:, 1]) / 2, (p[:, 0] - p[:, 1]) / H, (p[:, 2] + p[:, 3]) / 2, (p[:, 2] - p[:, 3]) / H, \
+        (p[:, 4] + p[:, 5]) / 2
 
 
-def test_stop_brings_it_to_rest_and_a_course_covers_its_distance():
-    # ramps up and down are mirror images: the distance is speed x duration (to a tick's travel)
-    d = DriveReference(LIMITS, 0.2, DT, SI, course=[(0.2, 0.0, 3.0), (0.0, math.radians(90), 1.0)])
-    p = profile(d, 6.0)
-    assert p[-1, 1] == 0.0 and p[-1, 4] == 0.0 and d.settled and not d.course
-    assert p[-1, 0] == pytest.approx(0.6, abs=0.2 * DT * 2)
-    assert math.degrees(p[-1, 3]) == pytest.approx(90.0, abs=100 * DT * 2)
-    assert np.abs(p[:, 5]).max() <= math.radians(LIMITS['yaw_accel_dps2']) + 1e-9
+def test_a_speed_change_keeps_the_limits_and_never_overshoots():
+    p = plan_si([(0.2, 0.0, 3.0)])
+    s, psi, v, w, a = forward_and_yaw(p)
+    ramp = transition_s(0.2, 0.6, 3.0)
+    k_ramp = int(ramp / DT) + 2
+    assert v[k_ramp] == pytest.approx(0.2, abs=1e-6) and v.max() <= 0.2 + 1e-6
+    assert np.all(np.diff(v[:int(3.0 / DT) - 1]) >= -1e-9)          # no dip on the way up
+    assert np.abs(a).max() <= 0.6 + 1e-6 and np.abs(np.diff(a)).max() <= 3.0 * DT * 1.05
+    assert np.allclose(np.diff(v), 0.5 * (a[1:] + a[:-1]) * DT, atol=5e-5)   # a is v's derivative
+    assert abs(v[-1]) < 1e-6 and np.all(p[-1, 2:] == 0)             # at rest once the course ends
 
 
-def test_commands_beyond_the_limits_are_clipped_to_them():
-    d = DriveReference(LIMITS, 0.2, DT, SI)
-    d.command(5.0, -10.0)
-    assert d.v_cmd == LIMITS['speed_mps'] and d.w_cmd == -math.radians(LIMITS['yaw_rate_dps'])
+def test_the_course_covers_its_distance_and_heading():
+    # each change is a smoothstep, so a segment's distance is its speed times its duration
+    p = plan_si([(0.2, 0.0, 3.0), (0.0, math.radians(90), 1.0)])
+    s, psi, v, w, a = forward_and_yaw(p)
+    assert s[-1] == pytest.approx(0.6, abs=1e-4)
+    assert math.degrees(psi[-1]) == pytest.approx(90.0, abs=0.01)
+    assert np.abs(w).max() <= math.radians(90) + 1e-6
 
 
 def test_the_wheels_follow_distance_and_heading():
-    d = DriveReference(LIMITS, 0.2, DT, [1e-6] * 6)
-    d.command(0.1, 0.5)
-    for _ in range(400):
-        ints = d.advance()
-    half = 0.1
-    assert ints[0] * 1e-6 == pytest.approx(d.s + d.psi * half, abs=2e-6)
-    assert ints[1] * 1e-6 == pytest.approx(d.s - d.psi * half, abs=2e-6)
-    assert ints[2] * 1e-6 == pytest.approx(0.1 + 0.5 * half, abs=2e-6)
-    assert ints[3] * 1e-6 == pytest.approx(0.1 - 0.5 * half, abs=2e-6)
+    p = plan_si([(0.1, 0.5, 2.0)])
+    s, psi, v, w, a = forward_and_yaw(p)
+    k = 300
+    assert p[k, 0] == pytest.approx(s[k] + psi[k] * H / 2, abs=1e-8)
+    assert (p[k, 2], p[k, 3]) == (pytest.approx(0.1 + 0.5 * H / 2, abs=1e-6), pytest.approx(0.1 - 0.5 * H / 2, abs=1e-6))
 
 
-def test_a_stall_moves_the_reference_on_by_its_periods():
-    a, b = DriveReference(LIMITS, 0.2, DT, SI), DriveReference(LIMITS, 0.2, DT, SI)
-    for d in (a, b):
-        d.command(0.2, 0.0)
+def test_a_stall_moves_the_plan_on_by_its_periods(physical):
+    (a, b), buf = core_pair(physical)
+    plan = plan_for(physical, a, [(0.2, 0.0, 2.0)])
+    for c in (a, b):
+        c.set_plan(plan)
     for _ in range(100):
-        a.advance()
+        a.step((0, 0, 0, 0), (0, 0), buf, 0)
     for _ in range(40):
-        b.advance()
+        b.step((0, 0, 0, 0), (0, 0), buf, 0)
     b.skip(59)
-    b.advance()
-    assert (b.s, b.v, b.ticks) == (a.s, a.v, a.ticks)
+    b.step((0, 0, 0, 0), (0, 0), buf, 0)
+    assert a.reference() == b.reference() and a.reference()[2] > 0.1
+    b.skip(1000)            # beyond its end: the last row, at rest, is held
+    b.step((0, 0, 0, 0), (0, 0), buf, 0)
+    assert b.reference()[2:] == [0.0] * 4 and b.reference()[0] > 0.3
 
 
 # -- course files
@@ -108,6 +105,9 @@ def test_a_course_file_reads_as_segments(tmp_path):
     ([{'speed_mps': 0.2, 'yaw_rate_dps': 50, 'duration_s': 1}], 'field [0].speed_mps and yaw_rate_dps together ask '
                                                                 'for 130 % of the drive budget'),
     ([{'speed_mps': 0.1, 'yaw_rate_dps': 0, 'duration_s': 0}], 'field [0].duration_s must be a number in (0.0'),
+    ([{'speed_mps': 0.2, 'yaw_rate_dps': 0, 'duration_s': 0.3}], 'field [0].duration_s is 0.3 s, shorter than the 0.63 s'),
+    ([{'speed_mps': 0.1, 'yaw_rate_dps': 0, 'duration_s': 100}, {'speed_mps': 0, 'yaw_rate_dps': 0, 'duration_s': 30}],
+     'field [1].duration_s makes the course 130 s long: at most 120 s'),
     ([{'speed_mps': True, 'yaw_rate_dps': 0, 'duration_s': 1}], 'field [0].speed_mps must be a number'),
 ])
 def test_a_course_the_robot_cannot_do_is_refused_by_file_and_field(tmp_path, doc, words):
@@ -144,7 +144,7 @@ def core_pair(gains):
 
 def test_standing_the_reference_changes_nothing(physical):
     (a, b), buf = core_pair(physical)
-    b.drive = drive_for(physical, b)       # a drive reference that is never commanded
+    b.set_plan(bytes(48))                  # driving the whole product, on a reference that stays at zero
     rng = np.random.default_rng(0)
     for k in range(200):
         enc = tuple(int(v) for v in rng.integers(-3, 4, size=4))
@@ -195,13 +195,13 @@ def test_run_with_a_course_logs_the_reference_and_replays_exactly(fake, tmp_path
     from tipbot_fw.replay import replay
     config = S.write_json(tmp_path / 'quick.json',
                           {'realtime_priority': 0, 'gyro_calibration': {'settle_s': 0.05, 'duration_s': 0.05}})
-    course = write(tmp_path, [{'speed_mps': 0.2, 'yaw_rate_dps': 10, 'duration_s': 0.3}])
+    course = write(tmp_path, [{'speed_mps': 0.2, 'yaw_rate_dps': 10, 'duration_s': 0.7}])
     log = str(tmp_path / 'run.log')
     code = cli.main(['run', '--gains', PHYSICAL_GAINS, '--config', config, '--duration', '0.4',
                      '--log', log, '--sysfs-root', fake.sysfs_root, '--course', course])
     assert code == 0, capsys.readouterr().err
     header, rows = read_log(log)
-    assert header['course'] == [{'speed_mps': 0.2, 'yaw_rate_dps': pytest.approx(10.0), 'duration_s': 0.3}]
+    assert header['course'] == [{'speed_mps': 0.2, 'yaw_rate_dps': pytest.approx(10.0), 'duration_s': 0.7}]
     names = [c['name'] for c in header['columns']]
     v_r = rows[:, names.index('ref_v_r')]
     assert v_r[0] == 0 and 0 < v_r.max() < 0.2 + 10 * math.pi / 180 * 0.13     # ramping up

@@ -43,6 +43,7 @@ from tipbot_fw.config import defaults
 from tipbot_fw.core import make_core
 from tipbot_fw.cues import OwnerCues
 from tipbot_fw.devices import MemoryDevices
+from tipbot_fw.drive import drive_problem, plan_for
 from tipbot_fw.gains import ACTUATED_INPUTS, N_INPUTS, UNUSED_INPUT, gains_from_dict, load_gains
 from tipbot_fw.loop import ControlLoop
 from tipbot_fw.plausibility import EncoderBound
@@ -182,7 +183,13 @@ def bench_devices():
     return dev
 
 
-def run_memory(n_ticks, gains=None, bare=False, sender=None, whole=False):
+# --drive: a course driven the whole run (forward and back, turning): a tick copies its row of
+# the plan whatever the course (tipbot_fw.drive), so any course costs the same.
+BENCH_SEGMENT = [(0.02, math.radians(5.0), 1.0), (-0.02, math.radians(-5.0), 1.0)]
+BENCH_REPEATS = 30
+
+
+def run_memory(n_ticks, gains=None, bare=False, sender=None, whole=False, drive=False):
     """The loop for 1 + n_ticks ticks on bench_devices() and a FrozenClock, with the owner's cues
     (no brick) and `sender` (a TelemetrySender or None) in its slack -> (LoopStats, log). Unless
     bare: supervised (a heartbeat page), plausibility-checked, its log written to a temporary
@@ -196,6 +203,10 @@ def run_memory(n_ticks, gains=None, bare=False, sender=None, whole=False):
     dev = files.devices if whole else bench_devices()
     core = make_core(gains, config, dev.counts_per_rot)
     core.set_gyro_bias(0.0)
+    if drive:
+        # the same plan whatever n_ticks (tools/tick-cost subtracts a run of 0 ticks: making the
+        # plan is start-up, not a tick's cost); a longer run holds its last row
+        core.set_plan(plan_for(gains, core, BENCH_SEGMENT * BENCH_REPEATS))
     extra = {}
     writer = None
     if bare:
@@ -425,14 +436,16 @@ def main(argv=None):
     device_layer = False
     bare = False
     whole = False
+    drive = False
     every = None
     usage = ('usage: python3 -m tipbot_fw.bench --ticks N [--gains FILE] [--bare | --whole] [--telemetry-every M] '
-             '[--device-layer]')
+             '[--device-layer] [--drive]')
     while args:
-        if args[0] in ('--bare', '--device-layer', '--whole'):
+        if args[0] in ('--bare', '--device-layer', '--whole', '--drive'):
             bare = bare or args[0] == '--bare'
             device_layer = device_layer or args[0] == '--device-layer'
             whole = whole or args[0] == '--whole'
+            drive = drive or args[0] == '--drive'
             args = args[1:]
             continue
         if args[0] == '--ticks' and len(args) > 1 and args[1].isdigit():
@@ -455,14 +468,19 @@ def main(argv=None):
     if gains_path is None and os.path.isfile(REPO_GAINS):
         gains_path = REPO_GAINS
     gains = load_gains(gains_path) if gains_path else None
+    if drive and (gains is None or drive_problem(gains, defaults())):
+        sys.stderr.write('bench: --drive: {}\n'.format(drive_problem(gains, defaults()) if gains else
+                                                       'needs gains with a drive reference (--gains FILE)'))
+        return 2
     sender, sink = local_sender(every) if every else (None, None)
-    stats, _ = run_memory(n_ticks, gains, bare, sender, whole)
+    stats, _ = run_memory(n_ticks, gains, bare, sender, whole, drive)
     if stats.ticks != n_ticks + 1:
         sys.stderr.write('bench: the loop stopped after {} ticks\n'.format(stats.ticks))
         return 1
-    sys.stdout.write('ticks {} (+1 start tick), gains {}{}\n'.format(
+    sys.stdout.write('ticks {} (+1 start tick), gains {}{}{}\n'.format(
         n_ticks, gains_path or 'synthetic', ', bare (no heartbeat, plausibility or log file)' if bare else
-        ', whole (the device layer on files and the real clock)' if whole else ''))
+        ', whole (the device layer on files and the real clock)' if whole else '',
+        ', driving a course' if drive else ''))
     if sender is not None:
         ts_s = gains.ts_s if gains else 0.005
         sys.stdout.write('telemetry: {} datagrams of {} bytes in {} ticks (one every {}: {:.0f} per second at '

@@ -14,10 +14,12 @@ at most 1). Errors are one line naming the file and the field (``course.json: fi
 import math
 
 from tipbot_fw import fields
+from tipbot_fw.drive import channel_limits, transition_s
 
 SEGMENT_FIELDS = ('speed_mps', 'yaw_rate_dps', 'duration_s')
 MAX_SEGMENTS = 1000
-MAX_SEGMENT_S = 3600.0
+# The whole plan is made before the run (tipbot_fw.drive): 48 bytes a tick, 1.2 MB for two minutes
+MAX_COURSE_S = 120.0
 
 
 class CourseError(ValueError):
@@ -40,6 +42,9 @@ def parse_course(doc, source, limits, prefix=''):
             f.fail('', problem)
         raise CourseError('{}: {}'.format(source, problem))
     v_max, w_max = limits['speed_mps'], limits['yaw_rate_dps']
+    fwd, yaw_lim = channel_limits(limits) if 'accel_mps2' in limits else (None, None)
+    previous = (0.0, 0.0)
+    total = 0.0
     out = []
     for i, seg in enumerate(doc):
         at = '[{}].'.format(i)
@@ -48,13 +53,25 @@ def parse_course(doc, source, limits, prefix=''):
         f.require(seg, SEGMENT_FIELDS, at)
         speed = f.number(at + 'speed_mps', seg['speed_mps'], lo=-v_max, hi=v_max, lo_open=False)
         yaw = f.number(at + 'yaw_rate_dps', seg['yaw_rate_dps'], lo=-w_max, hi=w_max, lo_open=False)
-        duration = f.number(at + 'duration_s', seg['duration_s'], lo=0.0, hi=MAX_SEGMENT_S)
+        duration = f.number(at + 'duration_s', seg['duration_s'], lo=0.0, hi=MAX_COURSE_S)
         share = abs(speed) / v_max + abs(yaw) / w_max
         if share > 1.0 + 1e-9:
             f.fail(at + 'speed_mps', 'and yaw_rate_dps together ask for {:.0f} % of the drive budget (|speed| / '
                    '{:.3g} m/s + |yaw rate| / {:.3g} deg/s must be at most 1: these gains\' limits)'.format(
                        100.0 * share, v_max, w_max))
-        out.append((speed, math.radians(yaw), duration))
+        yaw_rad = math.radians(yaw)
+        if fwd is not None:
+            # its own change of speed and of yaw rate must be over before the next one starts
+            need = max(transition_s(speed - previous[0], *fwd), transition_s(yaw_rad - previous[1], *yaw_lim))
+            if duration < need - 1e-9:
+                f.fail(at + 'duration_s', 'is {:g} s, shorter than the {:.2f} s its change of speed and yaw rate '
+                       'takes within these gains\' acceleration and jerk limits'.format(duration, need))
+        total += duration
+        if total > MAX_COURSE_S:
+            f.fail(at + 'duration_s', 'makes the course {:g} s long: at most {:g} s (its plan is made before the '
+                   'run)'.format(total, MAX_COURSE_S))
+        previous = (speed, yaw_rad)
+        out.append((speed, yaw_rad, duration))
     return out
 
 

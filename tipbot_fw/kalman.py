@@ -54,6 +54,7 @@ gains' feedforward G (hostsim.model.reference: K_a x_ref's other entries plus u_
 r): six more integers in v, six more columns of M, zero in the filter's rows (the estimate is of
 the robot, wherever the reference is). Standing, they are zero and the tick is the same to the bit.
 """
+import itertools
 import math
 import struct
 
@@ -245,7 +246,8 @@ class KalmanCore(object):
         self.law = np.hstack([kal.law_M, self._reference_columns(kal, n)])
         self.ref_lsb = [self.rad_per_count[0] * kal.wheel_radius_m / REF_POS_STEPS,
                         self.rad_per_count[1] * kal.wheel_radius_m / REF_POS_STEPS] + [2.0 ** -REF_RATE_EXP] * 4
-        self.drive = None       # a tipbot_fw.drive.DriveReference, or None: the robot stands
+        self.plan = None        # the drive plan's rows (set_plan), or None: the robot stands
+        self.next_row = None
         self.ref_pos_top = REF_BOUNDS[0] - 1
         lo, hi = BATTERY_RANGE_V
         v_bounds = [DUTY_BOUND] * N_U + [2.0 ** fx.STATE_BITS] * n + list(INPUT_BOUNDS) + list(REF_BOUNDS)
@@ -259,21 +261,26 @@ class KalmanCore(object):
         self.shift_list = self.row_exp[:N_U] + [self.row_exp[N_U + i] - self.q[i] for i in range(n)]
         if min(self.shift_list) < 1:
             raise ValueError('kalman law: a row has no fraction bits left (shifts {})'.format(self.shift_list))
-        self.v_bounds = v_bounds + [1.0]
+        # buffers: v (int64, the product's input, also the row's integer block), acc. The
+        # constant 1 before the reference: standing, the product stops there (the tick of before)
+        self.one = one = N_U + n + N_IN
+        self.n_v = one + 1 + N_REF
+        self.v_bounds = v_bounds[:one] + [1.0] + v_bounds[one:]
         self.shifts = np.array(self.shift_list, dtype=np.int64)
-        # buffers: v (int64, the product's input, also the row's integer block), acc
-        self.n_v = N_U + n + N_IN + N_REF + 1
         self.v_bytes = bytearray(8 * self.n_v)
         self.v = np.frombuffer(self.v_bytes, dtype='<i8')
-        self.v[self.n_v - 1] = 1
+        self.v[one] = 1
         self.acc = np.zeros(N_U + n, dtype=np.int64)
         self.v_head = self.v[0:N_U + n]
         self.M = np.zeros((N_U + n, self.n_v), dtype=np.int64)
-        self.dot = self.M.dot
+        self.M_stand = np.zeros((N_U + n, one + 1), dtype=np.int64)
+        self.v_in = self.v[0:one + 1]
+        self.dot = self.M_stand.dot
         self.rshift = np.right_shift
         self._in_off = 8 * (N_U + n)
-        self._ref_off = 8 * (N_U + n + N_IN)
-        self._row_ints = 8 * (N_U + n + N_IN + N_REF)
+        self._ref_off = 8 * (one + 1)
+        self._row_ints = 8 * self.n_v
+        self._ref_slice = slice(self._ref_off, self._row_ints)
         self.rows = layout or self.row_layout(gains, config)
         assert self.rows.q == self.q and self.rows.has_reference
         self.rows.ref_lsb = self.ref_lsb
@@ -349,9 +356,13 @@ class KalmanCore(object):
         self.dlim = min(100, int(round(self.u_max_v * 100.0 / battery_v)))
         n = self.n
         rowf = [self.polarity[i] * 100.0 / battery_v for i in range(N_U)] + [1.0] * n
-        self.M[:, :self.n_v - 1] = fx.quantize(self.law, self._col_factor(battery_v), rowf, self.row_exp)
+        q = fx.quantize(self.law, self._col_factor(battery_v), rowf, self.row_exp)
+        one = self.one
+        self.M[:, :one] = q[:, :one]
+        self.M[:, one + 1:] = q[:, one:]
         self.scale_row_f = rowf
-        self.M[:, self.n_v - 1] = self._constant_column(rowf)
+        self.M[:, one] = self._constant_column(rowf)
+        self.M_stand[:] = self.M[:, :one + 1]
         self._check_range()
 
     def _check_range(self):
@@ -414,12 +425,13 @@ class KalmanCore(object):
         d1 = r1 - p1
         j2lo, j2hi, j3lo, j3hi = self.joint_bounds
         _IN.pack_into(self.v_bytes, self._in_off, d0, d1, r0, r1, r2, r3, gyro[1])
-        if self.drive is not None:
-            REF.pack_into(self.v_bytes, self._ref_off, *self.drive.advance())
+        next_row = self.next_row
+        if next_row is not None:    # driving: this tick's reference, made before the run (set_plan)
+            self.v_bytes[self._ref_slice] = next_row()
         if not (j2lo <= r2 <= j2hi and j3lo <= r3 <= j3hi):
             # stop before the product: beyond the limits the fixed-point range is not assured
             return self._row(JOINT_LIMIT, gyro[0], buf, offset)
-        self.dot(self.v, self.acc)
+        self.dot(self.v_in, self.acc)
         self.rshift(self.acc, self.shifts, self.v_head)
         q0, q1, q2, q3, _, _, th1 = _HEAD.unpack_from(self.v_bytes, 0)
         return self._finish((q0, q1, q2, q3), th1, gyro[0], buf, offset)
@@ -463,8 +475,9 @@ class KalmanCore(object):
         log's flags (logfile.SKIP_SHIFT)."""
         if periods <= 0:
             return
-        if self.drive is not None:
-            self.drive.skip(periods)        # the reference follows the clock, not the ticks
+        if self.next_row is not None:   # the reference follows the clock, not the ticks
+            for _ in range(periods):
+                self.next_row()
         n = self.n
         v = self.v
         lsb = self.state_lsb
@@ -488,11 +501,26 @@ class KalmanCore(object):
     def reference(self):
         """The drive reference of the last tick (SI: d_r, d_l, v_r, v_l, a_r, a_l; zeros when
         the robot stands)."""
-        base = N_U + self.n + N_IN
+        base = self.one + 1
         return [int(self.v[base + i]) * self.ref_lsb[i] for i in range(N_REF)]
+
+    def _driving(self):
+        self.dot = self.M.dot
+        self.v_in = self.v
+
+    def set_plan(self, plan):
+        """Drive: `plan` (bytes, tipbot_fw.drive.course_plan) holds the reference's six
+        integers for every tick from the first step on; its last row is held once it ends."""
+        if len(plan) < REF.size or len(plan) % REF.size:
+            raise ValueError('a drive plan is whole rows of {} bytes'.format(REF.size))
+        # one bytes object a row, handed out by an iterator: a tick's cheapest copy on the brick
+        self.plan = [plan[i:i + REF.size] for i in range(0, len(plan), REF.size)]
+        self.next_row = itertools.chain(self.plan, itertools.repeat(self.plan[-1])).__next__
+        self._driving()
 
     def set_reference(self, ints):
         """The reference's integers for the next tick, as a logged row holds them (replay)."""
+        self._driving()
         REF.pack_into(self.v_bytes, self._ref_off, *ints)
 
     @property

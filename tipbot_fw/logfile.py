@@ -182,8 +182,8 @@ class KalmanRows(object):
         self.has_reference = has_reference
         self.ref_lsb = ref_lsb
         self.columns = kalman_columns(self.state_names, self.state_units)
-        if has_reference:
-            self.mem_names += [name for name, _ in REFERENCE_COLUMNS]
+        if has_reference:       # after the product's constant input (tipbot_fw.kalman)
+            self.mem_names += ['one'] + [name for name, _ in REFERENCE_COLUMNS]
             self.columns += list(REFERENCE_COLUMNS)
         self.row_bytes = 8 * len(self.mem_names)
         self.column_names = [c[0] for c in self.columns]
@@ -217,10 +217,12 @@ class KalmanRows(object):
             raise ValueError('encoder_offsets must be 4 integers')
         ref = header.get('reference')
         if ref is not None:
-            lsb = ref.get('lsb') if isinstance(ref, dict) else None
-            if not (ref.get('columns') == [name for name, _ in REFERENCE_COLUMNS] and isinstance(lsb, list)
-                    and len(lsb) == len(REFERENCE_COLUMNS) and all(isinstance(v, float) for v in lsb)):
-                raise ValueError('reference must name the columns {} and their lsb (numbers)'.format(
+            lsb = ref.get('lsb') if isinstance(ref, dict) else 0
+            # lsb null: a header written before the core was made (a start refused, no rows)
+            if not (isinstance(ref, dict) and ref.get('columns') == [name for name, _ in REFERENCE_COLUMNS]
+                    and (lsb is None or (isinstance(lsb, list) and len(lsb) == len(REFERENCE_COLUMNS)
+                                         and all(isinstance(v, float) for v in lsb)))):
+                raise ValueError('reference must name the columns {} and their lsb (numbers, or null)'.format(
                     [name for name, _ in REFERENCE_COLUMNS]))
             return cls(names, units, q, offsets, True, lsb)
         return cls(names, units, q, offsets, False)
@@ -244,7 +246,8 @@ class KalmanRows(object):
         out[:, 14:14 + n] = ints[:, 4:4 + n] * self.state_lsb[None, :]
         if self.has_reference:
             nr = len(REFERENCE_COLUMNS)
-            out[:, 14 + n:14 + n + nr] = ints[:, 4 + n + self.n_inputs:4 + n + self.n_inputs + nr] * np.array(
+            base = 4 + n + self.n_inputs + 1
+            out[:, 14 + n:14 + n + nr] = ints[:, base:base + nr] * np.array(
                 self.ref_lsb or [0.0] * nr)[None, :]
         return out
 

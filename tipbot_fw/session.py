@@ -19,7 +19,7 @@ from tipbot_fw import logfile, slack
 from tipbot_fw.calibration import calibrate_gyro
 from tipbot_fw.core import make_core, row_layout
 from tipbot_fw.cues import OwnerCues
-from tipbot_fw.drive import drive_for
+from tipbot_fw.drive import plan_for
 from tipbot_fw.heartbeat import NOT_SUPERVISED
 from tipbot_fw.loop import ControlLoop
 from tipbot_fw.console import say
@@ -116,8 +116,8 @@ def run_session(devices, gains, config, clock, log_path=None, duration_s=None,
         lim = config['limits']
         # the core first: its fixed-point format refuses a configuration before anything moves
         core = run['core'] = make_core(gains, config, devices.counts_per_rot, layout)
-        if course is not None:
-            core.drive = drive_for(gains, core, course)
+        if course is not None:      # before the calibration: nothing is watched or driven yet
+            core.set_plan(plan_for(gains, core, course))
         try:
             bv = devices.read_battery_v()
         except (OSError, ValueError) as e:
