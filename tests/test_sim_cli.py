@@ -77,10 +77,16 @@ def test_unknown_verb(capsys):
 @pytest.mark.slow
 def test_sim_writes_the_report(tmp_path, capsys):
     out = tmp_path / "sim"
-    code = main(["sim", "--out", str(out), "--scenarios", "section7", "--no-robustness", "--device", "memory"])
+    code = main(["sim", "--out", str(out), "--scenarios", "section7", "--no-robustness", "--device", "memory",
+                 "--drive-scenarios", "drive_straight"])
     assert code == 0
     report = (out / "report.md").read_text()
     assert "Where the paper's claims cannot hold" in report
+    # the course: its tracking row (true path against the commanded one) and its plan view
+    assert "| drive_straight | firmware/optimal | yes |" in report
+    assert (out / "drive_straight" / "plan_view.png").exists()
+    tracking = json.loads((out / "drive_straight" / "metrics.json").read_text())["runs"]["firmware/optimal"]["tracking"]
+    assert 0.15 < tracking["max_speed_mps"] < 0.5 and tracking["final_position_error_m"] < 0.1
     assert "Section 7's initial state cannot be handled without saturation" in report
     for line in report.splitlines():
         if line.startswith("![") and "](" in line:

@@ -107,7 +107,7 @@ def compute(run, sc, u_max_v):
         m["disturbed_peak_dev"] = [_f(v) for v in dev]
         m["disturbed_peak_abs_u_v"] = [_f(v) for v in udev]
     m.update(_estimation(run, t))
-    if getattr(sc, "course", None):
+    if getattr(sc, "course", None) and run.header is not None and "course" in run.header:
         m["tracking"] = course_tracking(run, sc)
     return m
 

@@ -311,11 +311,28 @@ def scenario_plots(sc, runs, u_max_v, out_dir):
         "velocities": velocities(sc, opt, os.path.join(out_dir, "velocities.png")),
         "inputs": inputs(sc, opt, u_max_v, os.path.join(out_dir, "inputs.png")),
     }
+    if sc.course:
+        out["plan_view"] = plan_view(sc, opt, os.path.join(out_dir, "plan_view.png"))
     if len(sc.controllers) > 1:
         for mode in sorted({label.split("/")[0] for label in runs}):
             out["compare_" + mode] = compare_controllers(sc, runs, mode, u_max_v,
                                                          os.path.join(out_dir, "compare_%s.png" % mode))
     return out
+
+
+def plan_view(sc, runs, path):
+    """Driving: the commanded path and the simulated robot's true path seen from above."""
+    from hostsim.model.params import scaled_params
+    from hostsim.sim import tracking
+    fig, ax = plt.subplots(figsize=(6.5, 6.0))
+    fig.suptitle(caption(sc.name, "plan view: commanded (dashed) and true path; o start, x end"), fontsize=10)
+    track_m = scaled_params(sc.param_scale)["track_m"]
+    segments = [(v, np.degrees(w), d) for v, w, d in sc.course]
+    for label, run in runs.items():
+        true = tracking.planar_path(run.t_s, run.x[:, 0], run.x[:, 1], track_m)
+        commanded = tracking.commanded_path(segments, 0.0, end_s=float(run.t_s[-1]))
+        tracking.plan_view_plot(ax, true, commanded, label=label)
+    return _save(fig, path)
 
 
 def montecarlo_figure(results, path, what="parameter, sensor and timing uncertainty"):

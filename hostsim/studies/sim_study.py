@@ -21,6 +21,8 @@ SCENARIOS = ("section7", "section7_governed", "section8", "appendix_d", "section
 # Issue 22: a payload on link 3 and sloped floors on the realistic brick, reported in one
 # compact table (load_table) rather than a section each.
 LOAD_SCENARIOS = ("payload_100g", "payload_put_on", "slope_up_5deg", "slope_down_5deg", "ramp")
+# Issue 21: driving courses on the realistic brick, one table and a plan view each.
+DRIVE_SCENARIOS = ("drive_straight", "drive_square", "drive_eight")
 ABLATION_GAINS = ("gains/physical.json",)     # what make deploy ships
 GAINS = ("paper", "physical")
 
@@ -50,6 +52,23 @@ def load_table(docs):
     return "\n".join(rows)
 
 
+def drive_table(docs):
+    """One line per course run: up, the tracking figures (the simulated robot's true path against
+    the commanded one, hostsim.sim.tracking), the share of ticks saturated."""
+    rows = ["| scenario | run | upright | RMS cross-track cm | final position error cm | final heading error deg | "
+            "max speed m/s | max yaw rate deg/s | saturated % |", "|---|---|---|---|---|---|---|---|---|"]
+    for doc in docs:
+        for label, m in doc["runs"].items():
+            t = m.get("tracking")
+            if not t:
+                continue
+            rows.append("| %s | %s | %s | %.1f | %.1f | %.1f | %.2f | %.0f | %.1f |" % (
+                doc["scenario"], label, "yes" if m["upright"] else "no (%s)" % m["stop_reason"],
+                100 * t["rms_cross_track_m"], 100 * t["final_position_error_m"], t["final_heading_error_deg"],
+                t["max_speed_mps"], t["max_yaw_rate_dps"], 100 * (m["saturated_fraction"] or 0.0)))
+    return "\n".join(rows)
+
+
 def firmware_note(docs, mc):
     """What the firmware-in-the-loop results say about the firmware as it is."""
     from tipbot_fw.config import defaults
@@ -75,6 +94,8 @@ def main(argv=None):
     ap.add_argument("--out", default=out_dir("sim"), help="output directory (default out/sim)")
     ap.add_argument("--scenarios", nargs="+", default=list(SCENARIOS),
                     help="scenario names or files (default: %s)" % " ".join(SCENARIOS))
+    ap.add_argument("--drive-scenarios", nargs="*", default=list(DRIVE_SCENARIOS),
+                    help="driving courses, one table and a plan view each (default: %s)" % " ".join(DRIVE_SCENARIOS))
     ap.add_argument("--load-scenarios", nargs="*", default=list(LOAD_SCENARIOS),
                     help="payload and slope scenarios, one compact table (default: %s)" % " ".join(LOAD_SCENARIOS))
     ap.add_argument("--device", choices=("sysfs", "memory"), default="sysfs",
@@ -147,6 +168,12 @@ def _study(args, final):
         say("scenario %s" % name)
         load_docs.append(runner.run_and_write(sc, os.path.join(args.out, sc.name), sysfs=args.device == "sysfs",
                                               say=say))
+    drive_docs = []
+    for name in args.drive_scenarios:
+        sc = load_scenario(name)
+        say("scenario %s" % name)
+        drive_docs.append(runner.run_and_write(sc, os.path.join(args.out, sc.name), sysfs=args.device == "sysfs",
+                                               say=say))
     roa_res = mc_res = mc_brick = margins_res = None
     if not args.no_robustness:
         rdir = os.path.join(args.out, "robustness")
@@ -166,6 +193,10 @@ def _study(args, final):
             margins.write(margins_res, rdir)
     note = firmware_note(docs, mc_res)
     notes = []
+    if drive_docs:
+        notes.append("## Driving (issue 21)\n\nCourses on the realistic brick with `physical` gains, the firmware "
+                     "following its drive plan; tracking measured on the simulated robot's true path against the "
+                     "commanded one (the plan view in each scenario's directory).\n\n" + drive_table(drive_docs) + "\n")
     if load_docs:
         notes.append("## Payloads on link 3 and slopes (issue 22)\n\nThe realistic brick with `physical` gains; "
                      "each scenario's files under its own directory.\n\n" + load_table(load_docs) + "\n")
@@ -179,6 +210,7 @@ def _study(args, final):
     print("(%s)" % runner.SUMMARY_NOTE)
     print()
     tables = [
+        ("Driving courses (realistic brick)", drive_docs and drive_table(drive_docs)),
         ("Payloads on link 3 and slopes (realistic brick)", load_docs and load_table(load_docs)),
         ("Region of attraction (largest recovered initial angle)", roa_res and roa.format_table(roa_res)),
         ("Monte Carlo (firmware in the loop, physical model)", mc_res and montecarlo.format_table(mc_res)),
