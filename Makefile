@@ -70,7 +70,7 @@ help:
 	@echo "  stage        lay out what deploy copies, in $(STAGE) (DEPLOY_VARIANT=, CONFIG=)"
 	@echo "  deploy       copy what changed to the brick over ssh (HOST=robot@ev3dev.local; CONFIG=file,"
 	@echo "               REMOVE_CONFIG=1, DEPLOY_VARIANT=physical-ts0.010, FORCE=1, SERVICE=1)"
-	@echo "  run          run the controller on the brick over ssh (HOST=...; DURATION=s)"
+	@echo "  run          run the controller on the brick over ssh (HOST=...; DURATION=s; COURSE=file: drive it)"
 	@echo "  logs         fetch the brick's new run logs into logs/<host>/ (HOST=...)"
 	@echo "  watch        run on the brick with live telemetry plotted here (HOST=...; DURATION=s,"
 	@echo "               RECORD=file.csv, SNAPSHOT=file.png, WATCH_PORT=5005)"
@@ -164,7 +164,7 @@ deploy:
 # firmware stops the motors and writes its log).
 run:
 	$(need_host)
-	$(DEPLOY) run $(CONNECT) $(if $(DURATION),--duration $(DURATION)) $(if $(COURSE),--course $(COURSE)) -- $(RUN_ARGS)
+	$(DEPLOY) run $(CONNECT) $(if $(DURATION),--duration $(DURATION)) $(if $(COURSE),--course "$(COURSE)") -- $(RUN_ARGS)
 
 # Fetches the run logs not yet here (and the brick's gains.json, as gains-<sha256>.json) into
 # logs/<host>/ (LOGS_DIR=... elsewhere).

@@ -296,7 +296,10 @@ def test_run_on_the_brick_fetch_the_log_and_replay_it_exactly(brick, tmp_path):
         p = brick.make("deploy", "CONFIG=%s" % config)
         assert p.returncode == 0, p.stdout
         t0 = time.monotonic()
-        run = brick.make("run", "DURATION=3", "RUN_ARGS=--sysfs-root %s" % sysfs, timeout=90)
+        # a course too (COURSE=: copied to the brick's courses/, driven from the let-go cue)
+        course = tmp_path / "gentle course.json"
+        course.write_text('[{"speed_mps": 0.05, "yaw_rate_dps": 10, "duration_s": 1}]\n')
+        run = brick.make("run", "DURATION=3", "COURSE=%s" % course, "RUN_ARGS=--sysfs-root %s" % sysfs, timeout=90)
         took = time.monotonic() - t0
     finally:
         robot_out = robot.stop()
@@ -328,6 +331,9 @@ def test_run_on_the_brick_fetch_the_log_and_replay_it_exactly(brick, tmp_path):
     assert "released at" in robot_out, robot_out            # and the simulated robot moved
     assert os.path.realpath(header["gains"]["path"]) == os.path.realpath(os.path.join(brick.install_dir, "gains.json"))
     assert rows[:, [c["name"] for c in header["columns"]].index("gyro_rate")].std() > 0
+    assert header["course"] == [{"speed_mps": 0.05, "yaw_rate_dps": pytest.approx(10.0), "duration_s": 1}]
+    assert os.path.isfile(os.path.join(brick.install_dir, "courses", "gentle_course.json"))
+    assert rows[:, [c["name"] for c in header["columns"]].index("ref_v_r")].max() > 0.04
 
     plots = str(tmp_path / "plots")
     rp = subprocess.run([sys.executable, "-m", "hostsim", "replay", logs[0], "--out", plots], cwd=REPO,
