@@ -13,6 +13,7 @@ import math
 from dataclasses import replace
 
 import numpy as np
+import pytest
 
 from hostsim.sim.fil import run_firmware
 from hostsim.sim.linear_sim import simulate_linear
@@ -75,3 +76,24 @@ def test_disturbance_and_push_reach_the_plant_at_their_times():
     # The sample at t = 0.2 s is read just before the push acts.
     k = int(np.searchsorted(t, 0.2 - 1e-9))
     assert abs(x[k + 1, 7] - x[k, 7]) > 0.2 and abs(x[k, 7] - x[k - 1, 7]) < 0.1
+
+
+def test_a_ctrl_c_during_a_firmware_run_ends_the_host_job(monkeypatch):
+    # the firmware's guard turns the signal into a planned stop of its run; the host's job
+    # (make sim) must end too, not go on to its next run
+    import os
+    import signal
+    from hostsim.sim import fil
+    from hostsim.sim.scenario import load_scenario
+    real = fil.World.on_sleep
+    calls = []
+
+    def on_sleep(self, t_from, t_to):
+        calls.append(t_to)
+        if len(calls) == 300:
+            os.kill(os.getpid(), signal.SIGINT)
+        return real(self, t_from, t_to)
+    monkeypatch.setattr(fil.World, "on_sleep", on_sleep)
+    with pytest.raises(KeyboardInterrupt):
+        fil.run_firmware(load_scenario("section8"), sysfs=False)
+    assert 300 <= len(calls) < 2000       # it stopped soon after the signal, not at the run's end

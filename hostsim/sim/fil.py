@@ -319,6 +319,10 @@ def run_firmware(sc, gains_path=None, gains_doc=None, sysfs=True, log_path=None,
             finally:
                 cues.close()
                 devices.close()
+            if header.get("stop_reason") == "keyboard_interrupt":
+                # the owner's Ctrl-C, which the firmware's own guard turned into a planned stop:
+                # the simulated world sends no signals, so it ends the host's job too (make sim)
+                raise KeyboardInterrupt
             if keep_rows and os.path.exists(log_path):
                 log_header, rows = logfile.read_log(log_path)
     finally:
