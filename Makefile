@@ -132,6 +132,8 @@ bench: venv
 	$(VPY) tools/tick-cost --ticks $(TICKS) --ticks-flag=--bench-polls -- python3 -m tipbot_fw.supervisor
 	@echo "== the device layer's own cost (5 reads, 4 writes per tick, beside the tick's)"
 	$(VPY) tools/tick-cost --ticks $(TICKS) -- python3 -m tipbot_fw.bench --device-layer
+	@echo "== the supervised tick while driving a course (its row of the drive plan copied each tick)"
+	$(VPY) tools/tick-cost --ticks $(TICKS) -- python3 -m tipbot_fw.bench --drive
 	@echo "== the whole tick as the brick pays it: supervised, the device layer on files and the real clock"
 	$(VPY) tools/tick-cost --ticks $(TICKS) --period-ms 5 -- python3 -m tipbot_fw.bench --whole
 	@echo "== memory: the supervisor, its guard and the controller of a supervised run (RSS, PSS)"
