@@ -228,18 +228,27 @@ def to_document(g):
     }
     for key in ("A", "B", "C", "E", "K", "K_w", "L1", "L2", "G_w", "Q", "R"):
         doc[key] = _matrix(getattr(g, key))
-    doc["kalman"] = _rounded(dict(g.kalman.document(), reference=drive_reference(g)))
+    kal = g.kalman.document()
+    reference_doc = drive_reference(g)
+    if reference_doc is not None:
+        kal["reference"] = reference_doc
+    doc["kalman"] = _rounded(kal)
     return doc
 
 
 def drive_reference(g):
-    """The Kalman block's drive reference (hostsim.model.reference) on the design's own model."""
+    """The Kalman block's drive reference (hostsim.model.reference) on the design's own model, or
+    None for a model that cannot follow one (its motion equations singular: no driving, the
+    firmware says so)."""
     ac, bc = g.model.linearize()
     t = state_scale_to_si(g.variant)
     ac_si, bc_si = t @ ac @ np.linalg.inv(t), t @ bc
     params = g.model.params
-    return reference.reference_block(ac_si, bc_si[:, list(ACTUATED_INPUTS)], g.kalman.K, params["u_max_v"],
-                                     params["track_m"])
+    try:
+        return reference.reference_block(ac_si, bc_si[:, list(ACTUATED_INPUTS)], g.kalman.K, params["u_max_v"],
+                                         params["track_m"])
+    except np.linalg.LinAlgError:
+        return None
 
 
 def with_law(doc, k_file=None, k_w=None, note=""):

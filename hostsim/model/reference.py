@@ -79,15 +79,16 @@ def limits(u, lean, u_max_v, track_m):
     """The command limits of the module docstring, from the inputs U and the lean per unit of r."""
     g = u
     half = track_m / 2.0
-    forward_v = np.abs(g[:, 0] + g[:, 1]).max()            # both wheels at +1 m/s
-    turn_v = np.abs(g[:, 0] - g[:, 1]).max() * half         # +-half track m/s per rad/s
-    forward_a = np.abs(g[:, 2] + g[:, 3]).max()
-    turn_a = np.abs(g[:, 2] - g[:, 3]).max() * half
-    lean_a = abs(lean[2] + lean[3])
+    tiny = 1e-9             # a model without a term (no friction, no lean) is capped below
+    forward_v = max(np.abs(g[:, 0] + g[:, 1]).max(), tiny)      # both wheels at +1 m/s
+    turn_v = max(np.abs(g[:, 0] - g[:, 1]).max() * half, tiny)  # +-half track m/s per rad/s
+    forward_a = max(np.abs(g[:, 2] + g[:, 3]).max(), tiny)
+    turn_a = max(np.abs(g[:, 2] - g[:, 3]).max() * half, tiny)
+    lean_a = max(abs(lean[2] + lean[3]), tiny)
     speed = min(SPEED_SHARE * u_max_v / forward_v, SPEED_CAP_MPS)
     yaw_rate = SPEED_SHARE * u_max_v / turn_v
     yaw_rate = min(yaw_rate, SPEED_CAP_MPS / half)
-    accel = min(ACCEL_SHARE * u_max_v / forward_a, LEAN_MAX_RAD / max(lean_a, 1e-9), ACCEL_CAP_MPS2)
+    accel = min(ACCEL_SHARE * u_max_v / forward_a, LEAN_MAX_RAD / lean_a, ACCEL_CAP_MPS2)
     yaw_accel = min(ACCEL_SHARE * u_max_v / turn_a, accel / half)     # a wheel: at most accel
     return {
         "speed_mps": speed, "accel_mps2": accel, "jerk_mps3": accel / RAMP_S,
