@@ -213,3 +213,23 @@ def test_run_with_a_course_logs_the_reference_and_replays_exactly(fake, tmp_path
 def test_the_paper_gains_drive_too(capsys, tmp_path):
     g = load_gains(PAPER_GAINS)
     assert g.kalman.reference is not None and g.kalman.reference.limits['speed_mps'] > 0.1
+
+
+def test_the_replayed_law_output_includes_the_reference(fake, tmp_path, capsys):
+    # replay.signals' u_cmd is the law's output before rounding: with a course, the logged duties
+    # are those of -K_a x^ + K_a d_ref + G r (to the duty's rounding), not of -K_a x^ alone
+    from tipbot_fw.replay import signals
+    config = S.write_json(tmp_path / 'quick.json',
+                          {'realtime_priority': 0, 'gyro_calibration': {'settle_s': 0.05, 'duration_s': 0.05}})
+    course = write(tmp_path, [{'speed_mps': 0.2, 'yaw_rate_dps': 0, 'duration_s': 1.0}])
+    log = str(tmp_path / 'run.log')
+    assert cli.main(['run', '--gains', PHYSICAL_GAINS, '--config', config, '--duration', '0.5',
+                     '--log', log, '--sysfs-root', fake.sysfs_root, '--course', course]) == 0
+    header, rows = read_log(log)
+    sig = signals(header, rows, load_gains(PHYSICAL_GAINS))
+    applied, law = sig['u'][1:, [0, 1, 3, 4]], sig['u_cmd'][1:, [0, 1, 3, 4]]
+    duty_v = 8.2 / 100.0
+    inside = np.abs(law) < 7.0          # not saturated
+    assert inside.sum() > 100
+    assert np.abs(applied[inside] - law[inside]).max() <= duty_v * 0.5 + 1e-6
+    assert np.abs(sig['reference'][:, 2]).max() > 0.1

@@ -91,7 +91,8 @@ def _reader(layout):
 def signals(header, rows, gains):
     """The estimates and inputs of a log's rows, SI: {'x_hat': n x 10, 'w_hat': n x 5 (V),
     'u': the applied inputs (n x 5, V), 'u_cmd': the law's output before rounding and
-    saturation (n x 5, V)}, for either core."""
+    saturation (n x 5, V), and for a driven run 'reference' (n x 6: logfile.REFERENCE_COLUMNS)},
+    for either core."""
     names = [c['name'] for c in header['columns']]
     col = names.index
     pol = [header['config']['polarity'][m] for m in ('right_wheel', 'left_wheel', 'joint2', 'joint3')]
@@ -115,4 +116,14 @@ def signals(header, rows, gains):
         w_hat[:, ACTUATED_INPUTS[i]] = x[:, 10 + j]
     u_cmd = np.zeros((n, 5))
     u_cmd[:, ACTUATED_INPUTS] = -x.dot(kal.K.T)
-    return {'x_hat': x[:, :10], 'w_hat': w_hat, 'u': u, 'u_cmd': u_cmd, 'gyro_bias': x[:, -1]}
+    out = {'x_hat': x[:, :10], 'w_hat': w_hat, 'u': u, 'u_cmd': u_cmd, 'gyro_bias': x[:, -1]}
+    if 'ref_d_r' in names:
+        # driving: u = -K_a (x^ - x_ref) + u_ff = -K_a x^ + K_a's wheel columns d_ref + G r
+        # (tipbot_fw.kalman, "Driving"); the reference as the log has it
+        ref = np.column_stack([rows[:, col(c)] for c, _ in logfile.REFERENCE_COLUMNS])
+        extra = ref[:, 0:2].dot(kal.K[:, 0:2].T)
+        if kal.reference is not None:
+            extra += ref[:, 2:].dot(kal.reference.G.T)
+        u_cmd[:, ACTUATED_INPUTS] += extra
+        out['reference'] = ref
+    return out
