@@ -164,3 +164,25 @@ def test_the_datagram_layout_is_what_docs_telemetry_says():
     kal = telemetry.Layout(telemetry.KALMAN | 3)                                      # the Kalman filter's, w_r, w_l
     assert kal.size == 32 + (4 + 4 + 13 + 2) * 8 + (13 + 2) * 8 == 336
     assert kal.states[10:] == ['w_r', 'w_l', 'gyro_bias']
+
+
+def test_a_driven_runs_datagrams_carry_its_reference_as_the_log_has_it(tmp_path, sink):
+    from conftest import PHYSICAL_GAINS
+    from tipbot_fw.gains import load_gains
+    sock, target = sink
+    sender = TelemetrySender(target, every=5)
+    dev = MemoryDevices()
+    dev.source = S.moving_readings(1)
+    path = str(tmp_path / 'run.log')
+    code, header = run_session(dev, load_gains(PHYSICAL_GAINS), S.fw_config(), VirtualClock(), log_path=path,
+                               duration_s=0.6, say=lambda m: None, cues=OwnerCues(streams=()), telemetry=sender,
+                               course=[(0.1, 0.2, 1.0)])
+    header, rows = read_log(path)
+    got = [decode(d) for d in received(sock)]
+    assert got and all(sorted(g) == sorted(telemetry.DECODED_DRIVING + ['seq', 'tick', 'overruns', 'send_errors']) for g in got)
+    names = [c['name'] for c in header['columns']]
+    for g in got:
+        for name in telemetry.REFERENCE_NAMES:
+            assert g[name] == rows[g['tick'], names.index(name)], (g['tick'], name)     # the same bits
+    assert max(g['ref_v_r'] for g in got) > 0.05
+    assert telemetry.Layout(telemetry.KALMAN | telemetry.REFERENCE | 3).size == 336 + 96

@@ -5,7 +5,8 @@ Datagram, version 2, little-endian (docs/telemetry.md): HEADER, then the tick's 
 then, for the Kalman core, the constants that make them SI:
 
     magic b'TBTM', u16 version, u8 layout (0: the detector core's row; KALMAN | the bits of
-    the filter's disturbance states, DISTURBANCE_BITS: the Kalman core's), u8 polarity bits
+    the filter's disturbance states: the Kalman core's; | REFERENCE: a driven run's, the drive
+    reference's six integers after the wheel counts, their resolutions last), u8 polarity bits
     (bit i: motor i's polarity is -1, motors r, l, th2, th3), u32 seq (datagrams so far),
     u32 tick, u32 overruns (so far), u32 send errors (so far), f64 t0 (the loop's clock at the
     first tick), then ROW_FIELDS[core] of the tick's row, 8 bytes each, as the row holds them
@@ -30,7 +31,7 @@ import operator
 import socket
 import struct
 
-from tipbot_fw.logfile import STATE_NAMES
+from tipbot_fw.logfile import REFERENCE_COLUMNS, STATE_NAMES
 
 MAGIC = b'TBTM'
 VERSION = 2
@@ -40,6 +41,10 @@ _VARYING = 'IIIId'
 _VARYING_AT = 8
 HEADER = struct.Struct('<4sHBB' + _VARYING)
 KALMAN = 0x80
+# A driven run's datagrams (the Kalman core with a course) carry the drive reference too: its six
+# integers after the wheel counts, their SI resolutions after the constants
+REFERENCE = 0x40
+REFERENCE_NAMES = tuple(name for name, _ in REFERENCE_COLUMNS)
 DISTURBANCES = ('w_r', 'w_l', 'w_th2', 'w_th3')
 # The row's columns each datagram carries, per core; 'xi_*' stands for the Kalman filter's
 # states in the row's order (10 robot states, its disturbance states, the gyro bias)
@@ -55,6 +60,8 @@ ROW_FIELDS = {
 # does not estimate) and the applied inputs, under the names `hostsim export` gives them.
 DECODED = (['time_s', 'tick_s', 'battery_v', 'flags', 'duty_r', 'duty_l', 'duty_2', 'duty_3']
            + ['xt_' + s for s in STATE_NAMES] + list(DISTURBANCES) + ['u_r', 'u_l', 'u_th2', 'u_th3'])
+# and for a driven run's datagrams (REFERENCE) the reference, as the log's ref_* columns
+DECODED_DRIVING = DECODED + list(REFERENCE_NAMES)
 # Default decimation: a datagram every 20 ticks, 10 per second at 5 ms (docs/telemetry.md).
 DEFAULT_EVERY = 20
 _DUTIES = ('duty_r', 'duty_l', 'duty_2', 'duty_3')
@@ -121,12 +128,14 @@ class Layout(object):
             self.states = None
             self.body = struct.Struct('<{}d'.format(len(self.fields)))
             self.consts = None
-        elif code & KALMAN and not code & ~(KALMAN | 15):
+        elif code & KALMAN and not code & ~(KALMAN | REFERENCE | 15):
             self.states = list(STATE_NAMES) + [w for i, w in enumerate(DISTURBANCES) if code >> i & 1] + ['gyro_bias']
             n = len(self.states)
             self.fields = self.expand(ROW_FIELDS['kalman'], self.states)
-            self.body = struct.Struct('<4d4q{}q2q'.format(n))
-            self.consts = struct.Struct('<{}d2d'.format(n))
+            nr = len(REFERENCE_NAMES) if code & REFERENCE else 0
+            self.fields += REFERENCE_NAMES[:nr]
+            self.body = struct.Struct('<4d4q{}q2q{}q'.format(n, nr))
+            self.consts = struct.Struct('<{}d2d{}d'.format(n, nr))
         else:
             raise TelemetryError('telemetry layout {:#x} is not one this reader knows'.format(code))
         self.size = HEADER.size + self.body.size + (self.consts.size if self.consts else 0)
@@ -139,15 +148,16 @@ class Layout(object):
         return tuple(out)
 
     @classmethod
-    def of_rows(cls, rows):
-        """The layout for a core's row layout (tipbot_fw.logfile.DetectorRows / KalmanRows)."""
+    def of_rows(cls, rows, driving=False):
+        """The layout for a core's row layout (tipbot_fw.logfile.DetectorRows / KalmanRows);
+        driving: with the drive reference."""
         if rows.estimator == 'detector':
             return cls(0)
         w = rows.state_names[10:-1]
         bad = [s for s in w if s not in DISTURBANCES]
         if bad:
             raise TelemetryError('telemetry: the Kalman filter\'s state {} has no place in a datagram'.format(bad[0]))
-        return cls(KALMAN | sum(1 << DISTURBANCES.index(s) for s in w))
+        return cls(KALMAN | (REFERENCE if driving else 0) | sum(1 << DISTURBANCES.index(s) for s in w))
 
 
 class TelemetrySender(object):
@@ -179,12 +189,14 @@ class TelemetrySender(object):
         over locals: on the brick each attribute lookup of a method would cost as much as a C
         call here."""
         rows = core.rows
-        layout = Layout.of_rows(rows)
+        layout = Layout.of_rows(rows, getattr(core, 'plan', None) is not None)
         pick, put = row_copier(layout.fields, rows.mem_names, head=_VARYING)
         out = bytearray(layout.size)
         HEADER.pack_into(out, 0, MAGIC, VERSION, layout.code, polarity_bits(core.polarity), 0, 0, 0, 0, 0.0)
         if layout.consts is not None:
-            layout.consts.pack_into(out, HEADER.size + layout.body.size, *(list(rows.state_lsb) + list(core.wheel_m)))
+            ref = list(rows.ref_lsb) if layout.code & REFERENCE else []
+            layout.consts.pack_into(out, HEADER.size + layout.body.size,
+                                    *(list(rows.state_lsb) + list(core.wheel_m) + ref))
         send, data, capacity, every, row_bytes = self.sock.send, log.data, log.capacity, self.every, log.row_bytes
         count = self.count = [0, 0]     # sent, not sent
 
@@ -225,8 +237,9 @@ def decode(data):
     """A datagram -> dict: seq, tick, overruns, send_errors, and DECODED, the tick's values as
     the replay's signals() gives them for the log (the same arithmetic: time_s = t_start - t0,
     u = polarity * duty * (battery_v / 100), the Kalman filter's x^ = xi 2^-q plus the wheels'
-    metres per count times their counts). TelemetryError if it is not a version-2 tipbot
-    telemetry datagram."""
+    metres per count times their counts; a driven run's reference, DECODED_DRIVING, as the log's
+    ref_* columns: its integers times their resolutions). TelemetryError if it is not a version-2
+    tipbot telemetry datagram."""
     if len(data) < HEADER.size or data[:4] != MAGIC:
         raise TelemetryError('not a tipbot telemetry datagram ({} bytes)'.format(len(data)))
     magic, version, code, pol, seq, tick, overruns, errors, t0 = HEADER.unpack_from(data, 0)
@@ -257,4 +270,7 @@ def decode(data):
         out['xt_' + s] = x[s]
     for w in DISTURBANCES:
         out[w] = x.get(w, 0.0)
+    if code & REFERENCE:
+        for i, name in enumerate(REFERENCE_NAMES):
+            out[name] = v[name] * consts[n + 2 + i]
     return out

@@ -34,6 +34,7 @@ from tipbot_fw import logfile, telemetry
 from hostsim.errors import TipbotError
 from hostsim.logs.export import csv_header, format_value
 
+NAN = float("nan")
 DEFAULT_PORT = 5005
 DEFAULT_WINDOW_S = 10.0
 REDRAW_S = 0.1
@@ -42,6 +43,8 @@ LINGER_S = 1.0          # after COMMAND ends, late datagrams are still taken thi
 PANELS = (
     ("links", "rad", [("xt_th1", "th1", 1.0), ("xt_th2", "th2", 1.0), ("xt_th3", "th3", 1.0)]),
     ("wheels", "m", [("xt_d_r", "d_r", 1.0), ("xt_d_l", "d_l", 1.0)]),
+    ("speeds", "m/s",
+     [("xt_d_r_dot", "d_r'", 1.0), ("xt_d_l_dot", "d_l'", 1.0), ("ref_v_r", "course r", 1.0), ("ref_v_l", "course l", 1.0)]),
     ("inputs", "V", [("u_r", "u_r", 1.0), ("u_l", "u_l", 1.0), ("u_th2", "u_th2", 1.0), ("u_th3", "u_th3", 1.0)]),
     ("disturbance estimate", "V", [("w_r", "w_r", 1.0), ("w_l", "w_l", 1.0), ("w_th2", "w_th2", 1.0),
                                    ("w_th3", "w_th3", 1.0)]),
@@ -50,6 +53,9 @@ PANELS = (
 COUNTERS = ("run", "seq", "tick", "overruns", "send_errors")
 _UNITS = dict(logfile.COLUMNS)
 FIELDS = list(telemetry.DECODED)
+# a driven run's reference: plotted, NaN (no line) for a run that stands; not recorded (a
+# recording's columns are those of every run)
+PLOTTED = FIELDS + list(telemetry.REFERENCE_NAMES)
 RECORD_COLUMNS = [(c, "") for c in COUNTERS] + [(f, _UNITS[f]) for f in FIELDS]
 
 
@@ -62,7 +68,7 @@ class Telemetry(object):
     is a new run of the firmware), counts of what was lost."""
 
     def __init__(self):
-        self.data = {f: [] for f in COUNTERS + tuple(FIELDS)}
+        self.data = {f: [] for f in COUNTERS + tuple(PLOTTED)}
         self.runs = 0
         self.received = self.bad = 0
         self.lost = 0               # sequence numbers skipped
@@ -79,7 +85,7 @@ class Telemetry(object):
             self.lost += v["seq"] - last["seq"] - 1
         v["run"] = self.runs
         for f, values in self.data.items():
-            values.append(v[f])
+            values.append(v.get(f, NAN))
         self.received += 1
         self.last = v
 
