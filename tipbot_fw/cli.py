@@ -16,7 +16,6 @@ from tipbot_fw.config import (SYSFS_ROOT, SYSFS_ROOT_ENV, ConfigError, check_con
 from tipbot_fw.console import say as _say
 from tipbot_fw.course import CourseError, read_course
 from tipbot_fw.cues import OwnerCues
-from tipbot_fw.drive import drive_problem
 from tipbot_fw.feedback import BrickSignals
 from tipbot_fw.gains import GainsError, load_gains
 from tipbot_fw.session import log_refused_start, open_log, run_session
@@ -205,6 +204,8 @@ def _course(args, gains, config):
     """The checked segments of --course (CourseError naming the file and field), or None."""
     if getattr(args, 'course', None) is None:
         return None
+    # imported here: a run that stands does not keep the drive's modules in the brick's memory
+    from tipbot_fw.drive import drive_problem
     problem = drive_problem(gains, config)
     if problem:
         raise CourseError('{}: cannot drive: {}'.format(args.course, problem))

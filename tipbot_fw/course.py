@@ -14,12 +14,25 @@ at most 1). Errors are one line naming the file and the field (``course.json: fi
 import math
 
 from tipbot_fw import fields
-from tipbot_fw.drive import channel_limits, transition_s
 
 SEGMENT_FIELDS = ('speed_mps', 'yaw_rate_dps', 'duration_s')
 MAX_SEGMENTS = 1000
 # The whole plan is made before the run (tipbot_fw.drive): 48 bytes a tick, 1.2 MB for two minutes
 MAX_COURSE_S = 120.0
+
+
+def transition_s(dv, a_max, j_max):
+    """The smoothstep's duration for a change dv (tipbot_fw.drive's docstring); 0 for no change."""
+    dv = abs(dv)
+    if dv == 0.0:
+        return 0.0
+    return max(1.5 * dv / a_max, math.sqrt(6.0 * dv / j_max))
+
+
+def channel_limits(limits):
+    """((a_max, j_max) forward in m/s^2, m/s^3, (alpha_max, yaw jerk) in rad/s^2, rad/s^3)."""
+    return ((limits['accel_mps2'], limits['jerk_mps3']),
+            (math.radians(limits['yaw_accel_dps2']), math.radians(limits['yaw_jerk_dps3'])))
 
 
 class CourseError(ValueError):
@@ -80,6 +93,3 @@ def read_course(path, limits):
     doc = fields.read_json(path, CourseError)[0]
     return parse_course(doc, path, limits)
 
-
-def course_duration_s(segments):
-    return sum(d for _, _, d in segments)

@@ -30,21 +30,9 @@ import math
 
 import numpy as np
 
+from tipbot_fw.course import channel_limits, transition_s
+
 ROW_BYTES = 48
-
-
-def transition_s(dv, a_max, j_max):
-    """The smoothstep's duration for a change dv (module docstring); 0 for no change."""
-    dv = abs(dv)
-    if dv == 0.0:
-        return 0.0
-    return max(1.5 * dv / a_max, math.sqrt(6.0 * dv / j_max))
-
-
-def channel_limits(limits):
-    """((a_max, j_max) forward in m/s^2, m/s^3, (alpha_max, yaw jerk) in rad/s^2, rad/s^3)."""
-    return ((limits['accel_mps2'], limits['jerk_mps3']),
-            (math.radians(limits['yaw_accel_dps2']), math.radians(limits['yaw_jerk_dps3'])))
 
 
 def _channel(targets, starts, period_s, n, lim):

@@ -19,7 +19,6 @@ from tipbot_fw import logfile, slack
 from tipbot_fw.calibration import calibrate_gyro
 from tipbot_fw.core import make_core, row_layout
 from tipbot_fw.cues import OwnerCues
-from tipbot_fw.drive import plan_for
 from tipbot_fw.heartbeat import NOT_SUPERVISED
 from tipbot_fw.loop import ControlLoop
 from tipbot_fw.console import say
@@ -117,6 +116,7 @@ def run_session(devices, gains, config, clock, log_path=None, duration_s=None,
         # the core first: its fixed-point format refuses a configuration before anything moves
         core = run['core'] = make_core(gains, config, devices.counts_per_rot, layout)
         if course is not None:      # before the calibration: nothing is watched or driven yet
+            from tipbot_fw.drive import plan_for       # here: a run that stands keeps it out of memory
             core.set_plan(plan_for(gains, core, course))
         try:
             bv = devices.read_battery_v()
