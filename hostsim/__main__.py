@@ -1,12 +1,14 @@
 """``python -m hostsim VERB ...``: every host tool, one command line.
 
 Each verb's module has a ``main(argv) -> exit status`` whose parser is named
-``python -m hostsim VERB``; the table maps verbs to modules, imported only when that verb runs,
+``hostsim.command(VERB)`` (as the owner started it: tipbot-host or python -m hostsim); the table maps verbs to modules, imported only when that verb runs,
 so one tool's heavy imports cost the others nothing. To add a tool: write its main(argv), with
 help on every option (tests/test_sim_cli.py checks), and list it here.
 """
 import importlib
 import sys
+
+import hostsim
 
 # verb: (module, one line for the list of verbs)
 COMMANDS = {
@@ -30,8 +32,9 @@ COMMANDS = {
 
 
 def usage():
-    lines = ["usage: python -m hostsim VERB [ARGS...]   (python -m hostsim VERB --help for its options;",
-             "       tipbot-host VERB ... is the same, once pip install -e . (make venv) has put it on PATH)",
+    me = hostsim.command()
+    lines = ["usage: %s VERB [ARGS...]   (%s VERB --help for its options;" % (me, me),
+             "       tipbot-host VERB ... and python -m hostsim VERB ... are the same; make venv puts tipbot-host on PATH)",
              "", "verbs:"]
     lines += ["  %-12s %s" % (name, text) for name, (_, text) in COMMANDS.items()]
     return "\n".join(lines)
@@ -44,7 +47,7 @@ def main(argv=None):
         return 0
     verb = argv[0]
     if verb not in COMMANDS:
-        print("python -m hostsim: unknown verb %r\n\n%s" % (verb, usage()), file=sys.stderr)
+        print("%s: unknown verb %r\n\n%s" % (hostsim.command(), verb, usage()), file=sys.stderr)
         return 2
     return importlib.import_module(COMMANDS[verb][0]).main(argv[1:])
 

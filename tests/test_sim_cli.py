@@ -138,3 +138,20 @@ def test_long_jobs_say_how_far_they_are_while_they_run():
     bar.close()
     lines = stream.getvalue().splitlines()
     assert lines and lines[0].startswith("Monte Carlo: 1/4 done, ") and "s left" in lines[0]
+
+
+def test_tipbot_host_calls_itself_so(monkeypatch, capsys):
+    # started as the console script, its usage lines and its tools' parsers say tipbot-host
+    monkeypatch.setattr(sys, "argv", ["/venv/bin/tipbot-host", "export", "--help"])
+    with pytest.raises(SystemExit):
+        main(["export", "--help"])
+    out = capsys.readouterr().out
+    assert out.startswith("usage: tipbot-host export")
+    with pytest.raises(SystemExit):
+        main(["export"])            # argparse's errors name the command too
+    assert capsys.readouterr().err.splitlines()[-1].startswith("tipbot-host export: error:")
+    assert main(["fly"]) == 2
+    assert capsys.readouterr().err.startswith("tipbot-host: unknown verb 'fly'")
+    monkeypatch.setattr(sys, "argv", ["-m"])
+    assert main(["fly"]) == 2
+    assert capsys.readouterr().err.startswith("python -m hostsim: unknown verb 'fly'")

@@ -22,6 +22,7 @@ import json
 import os
 import sys
 
+import hostsim
 import numpy as np
 
 from hostsim.errors import TipbotError
@@ -110,7 +111,7 @@ def export_csv(log_path, out=None, gains_path=None):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(prog="python -m hostsim export", description=__doc__.split("\n\n")[0],
+    ap = argparse.ArgumentParser(prog=hostsim.command("export"), description=__doc__.split("\n\n")[0],
                                  epilog=__doc__.split("\n\n", 1)[1],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("log", metavar="LOG", help="a tipbot log (run or identify)")

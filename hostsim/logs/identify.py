@@ -73,6 +73,7 @@ import os
 import sys
 from typing import Optional
 
+import hostsim
 import numpy as np
 from scipy.optimize import least_squares
 from scipy.signal import lfilter
@@ -716,7 +717,7 @@ def summary_json(groups):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(prog="python -m hostsim identify", description=__doc__.split("\n\n")[0],
+    ap = argparse.ArgumentParser(prog=hostsim.command("identify"), description=__doc__.split("\n\n")[0],
                                  epilog=__doc__.split("\n\n", 1)[1],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("logs", nargs="+", metavar="LOG", help="identify logs (python3 -m tipbot_fw identify)")

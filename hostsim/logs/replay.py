@@ -29,6 +29,7 @@ import hashlib
 import os
 import sys
 
+import hostsim
 import numpy as np
 
 import tipbot_fw
@@ -476,7 +477,7 @@ def plot(r, out_dir):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(prog="python -m hostsim replay", description=__doc__.split("\n\n")[0],
+    ap = argparse.ArgumentParser(prog=hostsim.command("replay"), description=__doc__.split("\n\n")[0],
                                  epilog=__doc__.split("\n\n", 2)[2],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("log", metavar="LOG", help="a run log (tipbot-*.log: from the brick via `make logs`, "

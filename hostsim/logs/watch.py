@@ -29,6 +29,7 @@ import subprocess
 import sys
 import time
 
+import hostsim
 from tipbot_fw import logfile, telemetry
 
 from hostsim.errors import TipbotError
@@ -308,7 +309,7 @@ def main(argv=None):
     if "--" in argv:
         i = argv.index("--")
         argv, command = argv[:i], argv[i + 1:]
-    ap = argparse.ArgumentParser(prog="python -m hostsim watch", description=__doc__.split("\n\n")[0],
+    ap = argparse.ArgumentParser(prog=hostsim.command("watch"), description=__doc__.split("\n\n")[0],
                                  epilog=__doc__.split("\n\n", 1)[1],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--port", type=int, default=DEFAULT_PORT, help="UDP port to listen on (default %d)" % DEFAULT_PORT)

@@ -22,6 +22,7 @@ import sys
 
 from typing import Optional
 
+import hostsim
 import numpy as np
 
 from hostsim.errors import TipbotError
@@ -471,7 +472,7 @@ def agreement_text(agreement):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(prog="python -m hostsim gains", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog=hostsim.command("gains"), description=__doc__.split("\n\n")[0])
     ap.add_argument("--variant", choices=VARIANT_NAMES + ("all",), default="all",
                     help="model variant to design (default all)")
     ap.add_argument("--ts", type=float, default=DEFAULT_TS_S,

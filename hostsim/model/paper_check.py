@@ -10,6 +10,7 @@ import argparse
 import json
 import os
 
+import hostsim
 import numpy as np
 
 from hostsim.model.gains import DEFAULT_TS_S, design_gains
@@ -96,7 +97,7 @@ def report(res):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(prog="python -m hostsim paper-check", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog=hostsim.command("paper-check"), description=__doc__.split("\n\n")[0])
     ap.add_argument("--params", default=DEFAULT_PARAMS_PATH, help="robot parameters JSON (default params/robot.json)")
     ap.add_argument("--ts", type=float, default=DEFAULT_TS_S, help="loop period in seconds (default 0.005)")
     args = ap.parse_args(argv)

@@ -34,6 +34,7 @@ import hashlib
 import json
 import os
 
+import hostsim
 import numpy as np
 from scipy.linalg import solve_discrete_lyapunov
 from scipy.optimize import minimize
@@ -134,7 +135,7 @@ def pd_for_gains(path):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(prog="python -m hostsim pd", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog=hostsim.command("pd"), description=__doc__.split("\n\n")[0])
     ap.add_argument("gains", nargs="*", metavar="GAINS",
                     help="gains files (default gains/paper.json gains/physical.json)")
     paths = ap.parse_args(argv).gains or [os.path.join(GAINS_DIR, v + ".json") for v in ("paper", "physical")]

@@ -48,6 +48,7 @@ import signal
 import sys
 import time
 
+import hostsim
 import numpy as np
 
 from hostsim.errors import TipbotError
@@ -229,7 +230,7 @@ def run_realtime(robot, duration_s=None, step_s=DEFAULT_STEP_S, stop=lambda: Fal
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(prog="python -m hostsim fake-robot",
+    ap = argparse.ArgumentParser(prog=hostsim.command("fake-robot"),
                                  description=__doc__.split("\n\n")[0],
                                  epilog=__doc__.split("\n\n", 1)[1],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)

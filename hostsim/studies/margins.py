@@ -37,6 +37,7 @@ import json
 import os
 import time
 
+import hostsim
 import numpy as np
 
 from hostsim.paths import REPO_ROOT, out_dir
@@ -369,7 +370,7 @@ def write(res, out):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(prog="python -m hostsim margins", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog=hostsim.command("margins"), description=__doc__.split("\n\n")[0])
     ap.add_argument("--gains", nargs="+", default=list(DEFAULT_GAINS),
                     help="gains files (default gains/paper.json gains/physical.json)")
     ap.add_argument("--coarse", action="store_true", help="tolerances x%g (what make sim runs)" % COARSE)

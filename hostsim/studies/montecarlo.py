@@ -34,6 +34,7 @@ import json
 import os
 import time
 
+import hostsim
 import numpy as np
 
 from hostsim.model.gains import with_law
@@ -303,7 +304,7 @@ def write(results, out_dir, name="montecarlo"):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(prog="python -m hostsim montecarlo", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog=hostsim.command("montecarlo"), description=__doc__.split("\n\n")[0])
     ap.add_argument("--runs", type=int, default=200, help="runs per gains file (default 200)")
     ap.add_argument("--duration", type=float, default=None, help="seconds per run (default: the base scenario's, 10)")
     ap.add_argument("--gains", nargs="+", default=list(DEFAULT_GAINS), help="gains files (default gains/paper.json gains/physical.json)")

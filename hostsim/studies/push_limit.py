@@ -45,6 +45,7 @@ import os
 import sys
 import time
 
+import hostsim
 import numpy as np
 
 from hostsim.paths import REPO_ROOT, out_dir
@@ -317,7 +318,7 @@ def _num(v):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(prog="python -m hostsim push-limit", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog=hostsim.command("push-limit"), description=__doc__.split("\n\n")[0])
     ap.add_argument("--gains", nargs="+", default=list(DEFAULT_GAINS),
                     help="gains files whose discrete model is studied (default gains/paper.json gains/physical.json)")
     ap.add_argument("--horizons", nargs="+", type=float, default=list(DEFAULT_HORIZONS_S),

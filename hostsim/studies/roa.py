@@ -21,6 +21,7 @@ import json
 import os
 import time
 
+import hostsim
 import numpy as np
 
 from hostsim.paths import out_dir
@@ -150,7 +151,7 @@ def write(res, out_dir):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(prog="python -m hostsim roa", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog=hostsim.command("roa"), description=__doc__.split("\n\n")[0])
     ap.add_argument("--gains", nargs="+", default=list(DEFAULT_GAINS), help="gains files (default gains/paper.json gains/physical.json)")
     ap.add_argument("--modes", default=",".join(DEFAULT_MODES), help="comma-separated: nonlinear, firmware")
     ap.add_argument("--tol", type=float, default=0.01, help="bisection resolution in rad (default 0.01)")

@@ -9,6 +9,7 @@ import json
 import os
 import time
 
+import hostsim
 import numpy as np
 
 from hostsim.sim import metrics as metrics_mod
@@ -156,7 +157,7 @@ def main(argv=None):
     from hostsim.paths import out_dir
     from hostsim.sim.scenario import MODES, load_scenario
 
-    ap = argparse.ArgumentParser(prog="python -m hostsim run", description="Run one scenario file.")
+    ap = argparse.ArgumentParser(prog=hostsim.command("run"), description="Run one scenario file.")
     ap.add_argument("scenario", help="scenario JSON file, or a name under scenarios/")
     ap.add_argument("--out", help="output directory (default out/run/<scenario>)")
     ap.add_argument("--modes", help="comma-separated subset of the scenario's modes (%s)" % ", ".join(MODES))

@@ -16,6 +16,8 @@ import argparse
 import dataclasses
 import time
 
+import hostsim
+
 
 def _time_run(sc, sysfs, repeat, doc):
     from hostsim.sim.fil import run_firmware
@@ -84,7 +86,7 @@ def measure(duration_s=10.0, repeat=3, mc_runs=None, jobs=None, say=print):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(prog="python -m hostsim bench-sim", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog=hostsim.command("bench-sim"), description=__doc__.split("\n\n")[0])
     ap.add_argument("--duration", type=float, default=10.0, help="simulated seconds per run (default 10)")
     ap.add_argument("--repeat", type=int, default=3, help="best of this many runs (default 3)")
     ap.add_argument("--mc-runs", type=int, default=None, help="Monte Carlo runs to time (default 4 per worker)")

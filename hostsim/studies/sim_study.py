@@ -15,6 +15,7 @@ import shutil
 import sys
 import time
 
+import hostsim
 from hostsim.paths import REPO_ROOT, out_dir
 
 SCENARIOS = ("section7", "section7_governed", "section8", "appendix_d", "section8_physical", "brick_realistic")
@@ -90,7 +91,7 @@ def firmware_note(docs, mc):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(prog="python -m hostsim sim", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog=hostsim.command("sim"), description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", default=out_dir("sim"), help="output directory (default out/sim)")
     ap.add_argument("--scenarios", nargs="+", default=list(SCENARIOS),
                     help="scenario names or files (default: %s)" % " ".join(SCENARIOS))

@@ -42,6 +42,7 @@ import signal
 import tempfile
 import time
 
+import hostsim
 import numpy as np
 
 from hostsim.model.motors import TABLE2, TABLE2_DRIVER, MotorParams
@@ -246,7 +247,7 @@ def _params_from_args(a):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(prog="python -m hostsim motor-sim", description=__doc__.split("\n\n")[0],
+    ap = argparse.ArgumentParser(prog=hostsim.command("motor-sim"), description=__doc__.split("\n\n")[0],
                                  epilog=__doc__.split("\n\n", 1)[1],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--motor", type=int, choices=sorted(TABLE2), default=1, help="Table 2 motor (default 1)")
