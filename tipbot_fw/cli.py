@@ -7,6 +7,7 @@ room reserved), then the devices, then the session. Under the supervisor the opt
 command line unchanged (the launcher passes its arguments on).
 """
 import argparse
+import os
 
 from tipbot_fw import heartbeat, identify, logfile, safety
 from tipbot_fw.calibration import calibrate_gyro
@@ -56,6 +57,9 @@ def _parser():
                     help='the gains file (JSON, made by make gains on the host: gains/physical.json; '
                     'the launcher passes the deployed gains.json)')
     sp.add_argument('--duration', metavar='S', type=_positive_float, help='stop after S seconds')
+    sp.add_argument('--remote', metavar='PORT', type=_positive_int,
+                    help='drive by the speed and turn commands of UDP datagrams to this port, from the host '
+                         'that started the run (docs/course-format.md, "Remote"); none for 0.3 s: it comes to rest')
     sp.add_argument('--course', metavar='FILE',
                     help='drive the timed segments of this course file from the let-go cue, then stand '
                          '(docs/course-format.md); without it the robot balances where it was let go')
@@ -143,6 +147,7 @@ def _main(argv, guard, hbt, supervisor_problem):
             check_config_against_gains(config, gains, _config_source(args))
         telemetry = _telemetry(args)
         course = _course(args, gains, config)
+        remote = _remote(args, gains, config)
     except (ConfigError, GainsError, TelemetryError, CourseError) as e:
         _say('refused to start: {}'.format(e))
         return safety.EXIT_INVALID
@@ -161,10 +166,12 @@ def _main(argv, guard, hbt, supervisor_problem):
             except (KeyboardInterrupt, safety.Terminated) as e:
                 _refused(log, gains, config, args, e, guard, cues)
                 return safety.classify(e)[1]
-        args.course_segments = course
+        args.course_segments, args.remote_receiver = course, remote
         return _start(args, config, gains, log, hbt, guard, cues, telemetry)
     finally:
         cues.close()
+        if remote is not None:
+            remote.close()
         if telemetry is not None:
             telemetry.close()
 
@@ -212,6 +219,24 @@ def _course(args, gains, config):
     return read_course(args.course, gains.kalman.reference.limits)
 
 
+def _remote(args, gains, config):
+    """The --remote receiver, listening before any device is touched (CourseError naming the
+    problem), or None."""
+    if getattr(args, 'remote', None) is None:
+        return None
+    from tipbot_fw.drive import drive_problem
+    from tipbot_fw.remote import Receiver, RemoteError, allowed_host
+    problem = drive_problem(gains, config)
+    if args.course is not None:
+        problem = '--remote and --course: one source of commands at a time'
+    if problem:
+        raise CourseError('--remote {}: cannot drive: {}'.format(args.remote, problem))
+    try:
+        return Receiver(args.remote, allowed_host(os.environ))
+    except RemoteError as e:
+        raise CourseError(str(e))
+
+
 def _config_source(args):
     """How messages name the configuration: its file, or the defaults."""
     return args.config or 'the default configuration (tipbot_fw/default_config.json)'
@@ -248,7 +273,11 @@ def _run(args, config, gains, devices, log, hbt, guard, cues, telemetry):
         'tipbot_fw.supervisor -- run ..., to have the motors stopped whatever ends this process)'))
     code, header = run_session(devices, gains, config, MonotonicClock(), duration_s=args.duration, log=log,
                                heartbeat=hbt, guard=guard, cues=cues, telemetry=telemetry,
-                               course=args.course_segments)
+                               course=args.course_segments, remote=args.remote_receiver)
+    if args.remote_receiver is not None:
+        r = args.remote_receiver.summary()
+        _say('remote: {} commands obeyed from {}; dropped: {}'.format(
+            r['obeyed'], r['host'] or 'nobody', ', '.join('{} {}'.format(v, k) for k, v in sorted(r['dropped'].items()))))
     if telemetry is not None:
         t = header['telemetry']
         _say('telemetry: {} datagrams to {} (one every {} ticks), {} not sent{}'.format(

@@ -84,12 +84,19 @@ def course_plan(course, limits, track_m, period_s, ref_lsb, top):
     n = int(math.ceil(end_s / period_s)) + 1
     s, v, a = _channel(speeds, starts, period_s, n, fwd)
     psi, w, al = _channel(yaws, starts, period_s, n, yaw_lim)
+    ints = reference_ints(s, psi, v, w, a, al, track_m, ref_lsb, top)
+    ints[-1, 2:] = 0                                    # the held row: at rest
+    return ints.tobytes()
+
+
+def reference_ints(s, psi, v, w, a, al, track_m, ref_lsb, top):
+    """The core's reference integers (k x 6, '<i8') of the forward and yaw channels' distance,
+    heading, rates and accelerations (arrays of k ticks): each wheel's, in the core's units."""
     h = track_m / 2.0
     si = np.column_stack([s + psi * h, s - psi * h, v + w * h, v - w * h, a + al * h, a - al * h])
     ints = si / np.array(ref_lsb, dtype=np.float64)[None, :]
     ints[:, 0:2] = np.clip(ints[:, 0:2], -top, top)     # 5 km out: beyond the fixed-point range
-    ints[-1, 2:] = 0.0                                  # the held row: at rest
-    return ints.astype('<i8').tobytes()
+    return ints.astype('<i8')
 
 
 def plan_for(gains, core, course):

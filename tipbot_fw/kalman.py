@@ -426,8 +426,11 @@ class KalmanCore(object):
         j2lo, j2hi, j3lo, j3hi = self.joint_bounds
         _IN.pack_into(self.v_bytes, self._in_off, d0, d1, r0, r1, r2, r3, gyro[1])
         next_row = self.next_row
-        if next_row is not None:    # driving: this tick's reference, made before the run (set_plan)
-            self.v_bytes[self._ref_slice] = next_row()
+        if next_row is not None:    # driving: this tick's reference (set_plan, set_live)
+            try:
+                self.v_bytes[self._ref_slice] = next_row()
+            except IndexError:      # a live plan the slack has not made yet: the last row held
+                pass
         if not (j2lo <= r2 <= j2hi and j3lo <= r3 <= j3hi):
             # stop before the product: beyond the limits the fixed-point range is not assured
             return self._row(JOINT_LIMIT, gyro[0], buf, offset)
@@ -476,8 +479,11 @@ class KalmanCore(object):
         if periods <= 0:
             return
         if self.next_row is not None:   # the reference follows the clock, not the ticks
-            for _ in range(periods):
-                self.next_row()
+            try:
+                for _ in range(periods):
+                    self.next_row()
+            except IndexError:
+                pass
         n = self.n
         v = self.v
         lsb = self.state_lsb
@@ -516,6 +522,13 @@ class KalmanCore(object):
         # one bytes object a row, handed out by an iterator: a tick's cheapest copy on the brick
         self.plan = [plan[i:i + REF.size] for i in range(0, len(plan), REF.size)]
         self.next_row = itertools.chain(self.plan, itertools.repeat(self.plan[-1])).__next__
+        self._driving()
+
+    def set_live(self, rows):
+        """Drive from a live plan: `rows` (a collections.deque of 48-byte rows, tipbot_fw.remote)
+        that the loop's slack keeps filled; one is taken each tick."""
+        self.plan = rows
+        self.next_row = rows.popleft
         self._driving()
 
     def set_reference(self, ints):

@@ -71,7 +71,7 @@ class BeatingClock(object):
 
 def run_session(devices, gains, config, clock, log_path=None, duration_s=None,
                 realtime_priority=None, say=say, cues=None, log=None, heartbeat=NOT_SUPERVISED, guard=None,
-                telemetry=None, course=None):
+                telemetry=None, course=None, remote=None):
     """Balance until duration_s (None: until stopped). -> (exit code, log header dict).
 
     Never raises; devices.stop_all() is called on every exit (tipbot_fw.safety.run_guarded).
@@ -83,7 +83,8 @@ def run_session(devices, gains, config, clock, log_path=None, duration_s=None,
     supervisor's page, armed during the calibration and from the loop's first tick until the
     motors are stopped. ``guard``: the SignalGuard already installed (tipbot_fw.cli), or None.
     ``course``: the segments of tipbot_fw.course (checked against the gains' limits) to drive
-    from the let-go cue, or None: the robot balances where it was let go.
+    from the let-go cue, or None: the robot balances where it was let go. ``remote``: a
+    tipbot_fw.remote.Receiver whose commands it drives by (the caller closes it), or None.
     """
     cues = OwnerCues() if cues is None else cues
     if realtime_priority is None:
@@ -92,6 +93,8 @@ def run_session(devices, gains, config, clock, log_path=None, duration_s=None,
     header['counts_per_rot'] = list(devices.counts_per_rot)
     header['supervised'] = heartbeat.supervised
     header['first_tick'] = 0     # a file holds a run's rows from its first tick (and a long run's last ones)
+    if remote is not None:
+        header['remote'] = {'host': remote.host}
     if course is not None:
         header['course'] = [{'speed_mps': v, 'yaw_rate_dps': math.degrees(w), 'duration_s': d} for v, w, d in course]
     layout = row_layout(gains, config)
@@ -118,6 +121,13 @@ def run_session(devices, gains, config, clock, log_path=None, duration_s=None,
         if course is not None:      # before the calibration: nothing is watched or driven yet
             from tipbot_fw.drive import plan_for       # here: a run that stands keeps it out of memory
             core.set_plan(plan_for(gains, core, course))
+        live = None
+        if remote is not None:
+            from tipbot_fw.remote import LivePlan, remote_side
+            ref = gains.kalman.reference
+            live = LivePlan(ref.limits, ref.track_m, gains.ts_s, core.ref_lsb, core.ref_pos_top)
+            live.fill()
+            core.set_live(live.rows)
         try:
             bv = devices.read_battery_v()
         except (OSError, ValueError) as e:
@@ -145,7 +155,8 @@ def run_session(devices, gains, config, clock, log_path=None, duration_s=None,
         cues.let_go()
         run['loop'].side = slack.combine(   # after let_go: the rest of its melody plays in the loop
             cues.in_loop(run['loop'], lim['warn_battery_v']),
-            telemetry.attach(rows, run['loop'].stats, core) if telemetry else None)
+            telemetry.attach(rows, run['loop'].stats, core) if telemetry else None,
+            remote_side(remote, live, gains.ts_s) if live is not None else None)
         run['loop'].run()
 
     def stop_motors():

@@ -1,0 +1,137 @@
+"""Driving from a remote (issue 21): the command datagrams obeyed and dropped, the command
+timeout, the live plan, and a run driven over UDP."""
+import math
+import socket
+import threading
+import time
+
+import numpy as np
+import pytest
+
+import fw_support as S
+from conftest import PHYSICAL_GAINS
+from hostsim.world.fake_ev3 import FakeEV3
+from tipbot_fw import cli
+from tipbot_fw.logfile import read_log
+from tipbot_fw.remote import COMMAND, MAGIC, TIMEOUT_S, LivePlan, Receiver, allowed_host
+
+LIMITS = {'speed_mps': 0.25, 'accel_mps2': 0.6, 'jerk_mps3': 3.0, 'yaw_rate_dps': 100.0,
+          'yaw_accel_dps2': 300.0, 'yaw_jerk_dps3': 1500.0}
+
+
+def datagram(seq, speed, yaw_dps):
+    return COMMAND.pack(MAGIC, seq, speed, yaw_dps)
+
+
+@pytest.fixture
+def receiver():
+    r = Receiver(0, host='127.0.0.1', sock=_bound())
+    yield r
+    r.close()
+
+
+def _bound():
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    s.bind(('127.0.0.1', 0))
+    return s
+
+
+def send(receiver, *datagrams, source=None):
+    out = source or socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    for d in datagrams:
+        out.sendto(d, receiver.sock.getsockname())
+    time.sleep(0.05)
+    if source is None:
+        out.close()
+
+
+def test_commands_are_obeyed_until_they_stop_coming(receiver):
+    send(receiver, datagram(1, 0.1, 30.0))
+    assert receiver.poll(10.0) == (pytest.approx(0.1), pytest.approx(math.radians(30.0)))
+    assert receiver.poll(10.0 + TIMEOUT_S - 0.01)[0] == pytest.approx(0.1)
+    assert receiver.poll(10.0 + TIMEOUT_S + 0.01) == (0.0, 0.0)      # no command for 0.3 s: rest
+
+
+def test_stale_reordered_and_malformed_datagrams_are_dropped(receiver):
+    send(receiver, datagram(5, 0.1, 0.0), datagram(3, 0.2, 0.0), datagram(5, 0.2, 0.0), b'TBDRjunk',
+         datagram(6, float('nan'), 0.0))
+    assert receiver.poll(1.0)[0] == pytest.approx(0.1)
+    assert receiver.dropped == {'stale': 2, 'foreign': 0, 'malformed': 2} and receiver.obeyed == 1
+
+
+def test_only_the_host_that_started_the_run_is_obeyed():
+    r = Receiver(0, host='192.0.2.7', sock=_bound())       # the ssh session came from elsewhere
+    try:
+        send(r, datagram(1, 0.1, 0.0))
+        assert r.poll(1.0) == (0.0, 0.0) and r.dropped['foreign'] == 1
+    finally:
+        r.close()
+    first = Receiver(0, host=None, sock=_bound())           # no ssh: the first sender is kept
+    try:
+        send(first, datagram(1, 0.1, 0.0))
+        assert first.poll(1.0)[0] == pytest.approx(0.1) and first.host == '127.0.0.1'
+    finally:
+        first.close()
+    assert allowed_host({'SSH_CLIENT': '10.0.0.2 51000 22'}) == '10.0.0.2' and allowed_host({}) is None
+
+
+def test_the_live_plan_follows_commands_within_the_limits():
+    lsb = [1e-9] * 6
+    plan = LivePlan(LIMITS, 0.2, 0.005, lsb, 2 ** 62)
+    rows = []
+    for k in range(600):
+        plan.command(0.5 if k < 300 else 0.0, math.radians(300.0))   # beyond both limits: clipped
+        plan.fill()
+        rows.append(plan.rows.popleft())
+    ints = np.frombuffer(b''.join(rows), dtype='<i8').reshape(-1, 6) * 1e-9
+    v, w = (ints[:, 2] + ints[:, 3]) / 2, (ints[:, 2] - ints[:, 3]) / 0.2
+    a = (ints[:, 4] + ints[:, 5]) / 2
+    assert v.max() == pytest.approx(0.25, abs=1e-6)          # the speed limit, then no room to turn
+    assert np.abs(a).max() <= 0.6 + 1e-6 and abs(v[-1]) < 1e-6
+    assert math.degrees(np.abs(w).max()) <= 100.0 + 1e-6 and math.degrees(w[-1]) == pytest.approx(100.0, abs=1e-3)
+    d = (ints[:, 0] + ints[:, 1]) / 2
+    assert np.all(np.diff(d) >= -1e-12) and d[-1] > 0.3
+
+
+def test_a_run_driven_over_udp(tmp_path, capsys):
+    config = S.write_json(tmp_path / 'quick.json',
+                          {'realtime_priority': 0, 'gyro_calibration': {'settle_s': 0.05, 'duration_s': 0.05}})
+    probe = _bound()
+    port = probe.getsockname()[1]
+    probe.close()
+    log = str(tmp_path / 'run.log')
+    stop = threading.Event()
+
+    def remote():
+        out = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        seq = 0
+        while not stop.is_set():
+            seq += 1
+            out.sendto(datagram(seq, 0.15, 0.0), ('127.0.0.1', port))
+            time.sleep(0.02)
+        out.close()
+    with FakeEV3(str(tmp_path / 'sys'), battery_v=8.2) as fake:
+        fake.set_readings((0, 0, 0, 0))
+        sender = threading.Thread(target=remote)
+        sender.start()
+        try:
+            code = cli.main(['run', '--gains', PHYSICAL_GAINS, '--config', config, '--duration', '1.0',
+                             '--log', log, '--sysfs-root', fake.sysfs_root, '--remote', str(port)])
+        finally:
+            stop.set()
+            sender.join()
+    err = capsys.readouterr().err
+    assert code == 0, err
+    assert 'remote: ' in err and 'commands obeyed from 127.0.0.1' in err
+    header, rows = read_log(log)
+    names = [c['name'] for c in header['columns']]
+    assert header['remote'] == {'host': None}
+    assert rows[:, names.index('ref_v_r')].max() > 0.1
+
+
+def test_remote_and_course_together_are_refused(tmp_path, capsys):
+    course = tmp_path / 'c.json'
+    course.write_text('[{"speed_mps": 0.1, "yaw_rate_dps": 0, "duration_s": 1}]')
+    assert cli.main(['run', '--gains', PHYSICAL_GAINS, '--course', str(course), '--remote', '5999',
+                     '--sysfs-root', str(tmp_path / 'none')]) == 2
+    assert 'one source of commands at a time' in capsys.readouterr().err

@@ -1,0 +1,190 @@
+"""Driving from a remote: speed and turn commands over UDP, followed as a live drive plan.
+
+`python3 -m tipbot_fw run ... --remote PORT` listens on UDP PORT for command datagrams
+(docs/course-format.md, "Remote"), 16 bytes little-endian:
+
+    magic b'TBDR', u32 seq, f32 speed_mps, f32 yaw_rate_dps
+
+Which datagrams are obeyed: only those of one host, the one that started the run (the address
+ssh says the session comes from, $SSH_CLIENT; without ssh, the first sender is taken and kept),
+each with a sequence number above the last one obeyed (a stale or reordered datagram is
+dropped), within the gains' limits (clipped to them: a remote's keys ask for 'faster' and get
+the fastest allowed). With no command obeyed for TIMEOUT_S the command is zero: the robot
+comes to rest and keeps balancing.
+
+The reference is made in the loop's slack (a side task, tipbot_fw.slack), LOOKAHEAD_TICKS ahead
+of the ticks, in batches with numpy: each change of a channel's command a smoothstep as a
+course's (tipbot_fw.drive), a change that arrives during another one waiting for it to end. The
+core copies one row a tick (KalmanCore.set_live); if the slack has been too short to make more,
+it holds the last row.
+
+Python 3.5, standard library and numpy.
+"""
+import collections
+import math
+import socket
+import struct
+
+import numpy as np
+
+from tipbot_fw.course import channel_limits, transition_s
+from tipbot_fw.drive import ROW_BYTES, reference_ints
+
+MAGIC = b'TBDR'
+COMMAND = struct.Struct('<4sIff')
+TIMEOUT_S = 0.3
+LOOKAHEAD_TICKS = 24        # beyond the loop's longest wait for a side task (10 ticks at 5 ms)
+MAX_DATAGRAMS = 32          # read in one call, at most
+
+
+class RemoteError(ValueError):
+    """A --remote port that cannot be listened on."""
+
+
+def allowed_host(environ):
+    """The host that started the run over ssh ($SSH_CLIENT: 'address port port'), or None."""
+    client = environ.get('SSH_CLIENT', '').split()
+    return client[0] if client else None
+
+
+class Receiver(object):
+    """The command datagrams of one host (module docstring); poll(now_s) -> (speed_mps,
+    yaw_rate_rad_s) now. Counts what it dropped: stale, foreign, malformed."""
+
+    def __init__(self, port, host=None, sock=None):
+        self.sock = sock or socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        if sock is None:
+            try:
+                self.sock.bind(('', int(port)))
+            except (OSError, ValueError) as e:
+                self.sock.close()
+                raise RemoteError('--remote {}: {}'.format(port, e))
+        self.sock.setblocking(False)
+        self.host = host
+        self.seq = -1
+        self.command = (0.0, 0.0)
+        self.last_s = None
+        self.dropped = {'stale': 0, 'foreign': 0, 'malformed': 0}
+        self.obeyed = 0
+
+    def poll(self, now_s):
+        for _ in range(MAX_DATAGRAMS):
+            try:
+                data, address = self.sock.recvfrom(64)
+            except OSError:        # nothing more (BlockingIOError), or an error: nothing new
+                break
+            self._take(data, address[0], now_s)
+        if self.last_s is None or now_s - self.last_s > TIMEOUT_S:
+            return 0.0, 0.0
+        return self.command
+
+    def _take(self, data, host, now_s):
+        if len(data) != COMMAND.size or data[:4] != MAGIC:
+            self.dropped['malformed'] += 1
+            return
+        if self.host is None:
+            self.host = host        # the first sender, kept for the run
+        if host != self.host:
+            self.dropped['foreign'] += 1
+            return
+        _, seq, speed, yaw_dps = COMMAND.unpack(data)
+        if seq <= self.seq or not (math.isfinite(speed) and math.isfinite(yaw_dps)):
+            self.dropped['stale' if seq <= self.seq else 'malformed'] += 1
+            return
+        self.seq = seq
+        self.command = (float(speed), math.radians(yaw_dps))
+        self.last_s = now_s
+        self.obeyed += 1
+
+    def summary(self):
+        return {'host': self.host, 'obeyed': self.obeyed, 'dropped': dict(self.dropped)}
+
+    def close(self):
+        self.sock.close()
+
+
+class _Channel(object):
+    """One channel (forward or yaw) of the live plan: its rate moves to each new command along a
+    smoothstep; a command during a change waits for its end."""
+
+    def __init__(self, limit, lim):
+        self.limit = limit
+        self.a_max, self.j_max = lim
+        self.v0 = self.dv = 0.0
+        self.t0 = self.T = 0.0
+        self.pending = None
+        self.pos = 0.0
+        self.last_rate = 0.0
+
+    def command(self, target, t_s):
+        target = max(-self.limit, min(self.limit, target))
+        if t_s < self.t0 + self.T:
+            self.pending = target
+            return
+        self._start(target, t_s)
+
+    def _start(self, target, t_s):
+        final = self.v0 + self.dv
+        self.pending = None
+        if target != final:
+            self.v0, self.dv = final, target - final
+            self.T = transition_s(self.dv, self.a_max, self.j_max)
+            self.t0 = t_s
+
+    def batch(self, t, dt):
+        """(position, rate, acceleration) at the times t (one batch of ticks)."""
+        if self.pending is not None and t[0] >= self.t0 + self.T:
+            self._start(self.pending, self.t0 + self.T)
+        if self.T > 0.0:
+            x = np.clip((t - self.t0) / self.T, 0.0, 1.0)
+            rate = self.v0 + self.dv * x * x * (3.0 - 2.0 * x)
+            acc = self.dv / self.T * 6.0 * x * (1.0 - x)
+        else:
+            rate = np.full(len(t), self.v0 + self.dv)
+            acc = np.zeros(len(t))
+        prev = np.concatenate([[self.last_rate], rate[:-1]])
+        pos = self.pos + np.cumsum(0.5 * (prev + rate) * dt)
+        self.pos, self.last_rate = float(pos[-1]), float(rate[-1])
+        return pos, rate, acc
+
+
+class LivePlan(object):
+    """The reference rows of a remote's commands, made ahead of the ticks (module docstring)."""
+
+    def __init__(self, limits, track_m, period_s, ref_lsb, top):
+        fwd, yaw = channel_limits(limits)
+        self.fwd = _Channel(limits['speed_mps'], fwd)
+        self.yaw = _Channel(math.radians(limits['yaw_rate_dps']), yaw)
+        self.track_m, self.dt, self.ref_lsb, self.top = track_m, period_s, ref_lsb, top
+        self.rows = collections.deque()
+        self.made = 0               # ticks made so far (the next row is tick made + 1's)
+
+    def command(self, speed_mps, yaw_rate_rad_s):
+        t = self.made * self.dt
+        # one budget for both (as a course's segments): the turn gives way to the speed
+        v_max, w_max = self.fwd.limit, self.yaw.limit
+        speed = max(-v_max, min(v_max, speed_mps))
+        room = max(0.0, 1.0 - abs(speed) / v_max) * w_max
+        self.fwd.command(speed, t)
+        self.yaw.command(max(-room, min(room, yaw_rate_rad_s)), t)
+
+    def fill(self, ahead=LOOKAHEAD_TICKS):
+        """Rows until `ahead` wait for the ticks."""
+        n = ahead - len(self.rows)
+        if n <= 0:
+            return
+        t = np.arange(self.made + 1, self.made + 1 + n, dtype=np.float64) * self.dt
+        s, v, a = self.fwd.batch(t, self.dt)
+        psi, w, al = self.yaw.batch(t, self.dt)
+        data = reference_ints(s, psi, v, w, a, al, self.track_m, self.ref_lsb, self.top).tobytes()
+        self.rows.extend(data[i:i + ROW_BYTES] for i in range(0, len(data), ROW_BYTES))
+        self.made += n
+
+
+def remote_side(receiver, plan, period_s):
+    """The side task: the newest command, then the rows ahead; called every tick it can be."""
+    def task(k):
+        plan.command(*receiver.poll(k * period_s))
+        plan.fill()
+        return k + 1
+    return task
