@@ -44,6 +44,7 @@ GAINS    ?=
 REPLAY_ARGS ?=
 # make watch HOST=... [DURATION=s] [WATCH_PORT=5005] [RECORD=file.csv] [SNAPSHOT=file.png]
 WATCH_PORT ?= 5005
+DRIVE_PORT ?= 5006
 RECORD   ?=
 SNAPSHOT ?=
 # make bench TELEMETRY_EVERY=20: the decimation of the telemetry bench (the firmware's default)
@@ -52,7 +53,7 @@ TELEMETRY_EVERY ?= 20
 MEM_SECONDS ?= 60
 
 .DEFAULT_GOAL := help
-.PHONY: help venv test test-fast gains paper-check sim replay bench brick stage deploy run logs watch sim-brick \
+.PHONY: help venv test test-fast gains paper-check sim replay bench brick stage deploy run drive logs watch sim-brick \
         sim-brick-stop clean distclean
 
 help:
@@ -71,6 +72,7 @@ help:
 	@echo "  deploy       copy what changed to the brick over ssh (HOST=robot@ev3dev.local; CONFIG=file,"
 	@echo "               REMOVE_CONFIG=1, DEPLOY_VARIANT=physical-ts0.010, FORCE=1, SERVICE=1)"
 	@echo "  run          run the controller on the brick over ssh (HOST=...; DURATION=s; COURSE=file: drive it)"
+	@echo "  drive        run on the brick and drive it from the keyboard (HOST=...; arrows/WASD, space, q)"
 	@echo "  logs         fetch the brick's new run logs into logs/<host>/ (HOST=...)"
 	@echo "  watch        run on the brick with live telemetry plotted here (HOST=...; DURATION=s,"
 	@echo "               RECORD=file.csv, SNAPSHOT=file.png, WATCH_PORT=5005)"
@@ -181,6 +183,14 @@ watch: $(if $(HOST),venv)
 	$(VPY) -m hostsim watch --port $(WATCH_PORT) $(if $(RECORD),--record $(RECORD)) \
 	  $(if $(SNAPSHOT),--snapshot $(SNAPSHOT)) -- \
 	  $(DEPLOY) run $(CONNECT) --telemetry-port $(WATCH_PORT) $(if $(DURATION),--duration $(DURATION)) -- $(RUN_ARGS)
+
+# Keyboard driving: `hostsim drive` sends the keys' commands to the brick's address (what ssh
+# resolves HOST to) and runs `make run`'s command with --remote DRIVE_PORT; q or Ctrl-C ends both.
+drive: $(if $(HOST),venv)
+	$(need_host)
+	$(VPY) -m hostsim drive --port $(DRIVE_PORT) \
+	  --to "$$($(SSH) -G $(HOST) | awk '/^hostname /{print $$2; exit}')" -- \
+	  $(DEPLOY) run $(CONNECT) $(if $(DURATION),--duration $(DURATION)) -- --remote $(DRIVE_PORT) $(RUN_ARGS)
 
 # The loopback brick (tools/sim-brick): runs in the foreground until Ctrl-C or `make sim-brick-stop`.
 sim-brick: venv

@@ -27,6 +27,7 @@ COMMANDS = {
     "replay": ("hostsim.logs.replay", "replay a robot log on the host (make replay)"),
     "identify": ("hostsim.logs.identify", "identify motor parameters from identify logs"),
     "watch": ("hostsim.logs.watch", "live telemetry from the robot: scrolling plots, recording (make watch)"),
+    "drive": ("hostsim.logs.drive", "drive the robot from the keyboard over UDP (make drive)"),
     "export": ("hostsim.logs.export", "a robot log as CSV for spreadsheets and notebooks"),
 }
 
