@@ -135,3 +135,25 @@ def test_remote_and_course_together_are_refused(tmp_path, capsys):
     assert cli.main(['run', '--gains', PHYSICAL_GAINS, '--course', str(course), '--remote', '5999',
                      '--sysfs-root', str(tmp_path / 'none')]) == 2
     assert 'one source of commands at a time' in capsys.readouterr().err
+
+
+def test_a_stall_skips_a_live_plan_but_leaves_the_ticks_rows():
+    from tipbot_fw.config import load_config
+    from tipbot_fw.gains import load_gains
+    from tipbot_fw.kalman import LIVE_KEEP_ROWS, KalmanCore
+    gains = load_gains(PHYSICAL_GAINS)
+    core = KalmanCore(gains, load_config())
+    core.set_gyro_bias(0.0)
+    core.set_battery(8.0)
+    buf = bytearray(core.rows.row_bytes)
+    core.start((0, 0, 0, 0), (0, 0), buf, 0)
+    ref = gains.kalman.reference
+    plan = LivePlan(ref.limits, ref.track_m, gains.ts_s, core.ref_lsb, core.ref_pos_top)
+    plan.command(0.1, 0.0)
+    plan.fill()
+    core.set_live(plan.rows)
+    core.skip(40)                       # a 200 ms stall: more than the plan has
+    assert len(plan.rows) == LIVE_KEEP_ROWS
+    for _ in range(LIVE_KEEP_ROWS):     # the ticks after it find their rows until the slack refills
+        core.step((0, 0, 0, 0), (0, 0), buf, 0)
+    assert core.reference()[2] > 0

@@ -107,6 +107,10 @@ REF = struct.Struct('<6q')
 _HEAD = struct.Struct('<7q')          # duty_r..duty_3, xi_d_r, xi_d_l, xi_th1
 _DUTIES = struct.Struct('<4q')
 _ROW_FLOATS = struct.Struct('<3d')    # battery_v, flags, gyro_angle
+# A live plan's rows a stall's skip leaves: more than the ticks the loop may go without its side
+# task, which makes them (tipbot_fw.loop.SIDE_WAIT_S: 10 ticks at 5 ms), so a tick always has one;
+# the reference then runs that much behind the clock, which a remote's driver does not see
+LIVE_KEEP_ROWS = 12
 # skip(m) composes A^m from A^(2^j), j < SKIP_POWERS; a longer stall repeats the largest one
 SKIP_POWERS = 7
 
@@ -248,6 +252,7 @@ class KalmanCore(object):
                         self.rad_per_count[1] * kal.wheel_radius_m / REF_POS_STEPS] + [2.0 ** -REF_RATE_EXP] * 4
         self.plan = None        # the drive plan's rows (set_plan), or None: the robot stands
         self.next_row = None
+        self.live = None
         self.ref_pos_top = REF_BOUNDS[0] - 1
         lo, hi = BATTERY_RANGE_V
         v_bounds = [DUTY_BOUND] * N_U + [2.0 ** fx.STATE_BITS] * n + list(INPUT_BOUNDS) + list(REF_BOUNDS)
@@ -427,10 +432,7 @@ class KalmanCore(object):
         _IN.pack_into(self.v_bytes, self._in_off, d0, d1, r0, r1, r2, r3, gyro[1])
         next_row = self.next_row
         if next_row is not None:    # driving: this tick's reference (set_plan, set_live)
-            try:
-                self.v_bytes[self._ref_slice] = next_row()
-            except IndexError:      # a live plan the slack has not made yet: the last row held
-                pass
+            self.v_bytes[self._ref_slice] = next_row()
         if not (j2lo <= r2 <= j2hi and j3lo <= r3 <= j3hi):
             # stop before the product: beyond the limits the fixed-point range is not assured
             return self._row(JOINT_LIMIT, gyro[0], buf, offset)
@@ -478,12 +480,12 @@ class KalmanCore(object):
         log's flags (logfile.SKIP_SHIFT)."""
         if periods <= 0:
             return
-        if self.next_row is not None:   # the reference follows the clock, not the ticks
-            try:
-                for _ in range(periods):
-                    self.next_row()
-            except IndexError:
-                pass
+        if self.live is not None:       # a live plan: skip what it has, keeping LIVE_KEEP_ROWS
+            for _ in range(min(periods, len(self.live) - LIVE_KEEP_ROWS)):
+                self.live.popleft()
+        elif self.next_row is not None:     # the reference follows the clock, not the ticks
+            for _ in range(periods):
+                self.next_row()
         n = self.n
         v = self.v
         lsb = self.state_lsb
@@ -526,8 +528,8 @@ class KalmanCore(object):
 
     def set_live(self, rows):
         """Drive from a live plan: `rows` (a collections.deque of 48-byte rows, tipbot_fw.remote)
-        that the loop's slack keeps filled; one is taken each tick."""
-        self.plan = rows
+        that the loop's slack keeps filled (more than LIVE_KEEP_ROWS ahead); one is taken each tick."""
+        self.plan = self.live = rows
         self.next_row = rows.popleft
         self._driving()
 

@@ -15,8 +15,8 @@ comes to rest and keeps balancing.
 The reference is made in the loop's slack (a side task, tipbot_fw.slack), LOOKAHEAD_TICKS ahead
 of the ticks, in batches with numpy: each change of a channel's command a smoothstep as a
 course's (tipbot_fw.drive), a change that arrives during another one waiting for it to end. The
-core copies one row a tick (KalmanCore.set_live); if the slack has been too short to make more,
-it holds the last row.
+core copies one row a tick (KalmanCore.set_live): the loop runs its side task at least every 10
+ticks, and a stall's skip leaves the plan 12 rows (tipbot_fw.kalman.LIVE_KEEP_ROWS).
 
 Python 3.5, standard library and numpy.
 """
@@ -33,7 +33,7 @@ from tipbot_fw.drive import ROW_BYTES, reference_ints
 MAGIC = b'TBDR'
 COMMAND = struct.Struct('<4sIff')
 TIMEOUT_S = 0.3
-LOOKAHEAD_TICKS = 24        # beyond the loop's longest wait for a side task (10 ticks at 5 ms)
+LOOKAHEAD_TICKS = 24        # beyond the loop's longest wait for its side task (10 ticks at 5 ms) and the 12 a skip keeps
 MAX_DATAGRAMS = 32          # read in one call, at most
 
 
