@@ -91,6 +91,8 @@ def test_a_kalman_log_exports_the_physical_columns_the_replay_rebuilds(tmp_path,
                            ('u_cmd_l_V', sig['u_cmd'][:, 1])):
         np.testing.assert_array_equal(values[:, names.index(name)], expected, err_msg=name)
     assert np.ptp(values[:, names.index('xt_th1_rad')]) > 1e-3     # not vacuous: the estimate moved
+    # link 1 has no motor: no input, disturbance or command columns that would always read 0
+    assert not [n for n in names if n.endswith('_th1_V')]
     bias = values[:, names.index('gyro_bias_deg_per_s')]
     assert abs(bias[0] - 1.0) < 1e-6           # the calibrated bias the filter starts from
     # without its gains (not beside it, not in gains/), one line that says what to do

@@ -28,7 +28,7 @@ import numpy as np
 from hostsim.errors import TipbotError
 from hostsim.logs import read_log
 from tipbot_fw import logfile, replay as fw_replay
-from tipbot_fw.gains import GainsError, load_gains
+from tipbot_fw.gains import ACTUATED_INPUTS, GainsError, load_gains
 
 # unit -> what a column name gets appended (None: nothing)
 UNIT_SUFFIX = {"m/s": "m_per_s", "rad/s": "rad_per_s", "deg/s": "deg_per_s", "%": "pct", "bits": None, "": None}
@@ -65,9 +65,11 @@ def format_value(v):
     return "%d" % v if v.is_integer() and abs(v) < 2 ** 53 else repr(v)
 
 
-# The physical columns a Kalman log gets (the detector's file columns of the same names)
+# The physical columns a Kalman log gets (the detector's file columns of the same names), of the
+# four motors' inputs (link 1 has none: its columns would always read 0)
+MOTOR_INPUTS = [n for i, n in enumerate(logfile.INPUT_NAMES) if i in ACTUATED_INPUTS]
 PHYSICAL = ([("xt_" + n, u) for n, u in zip(logfile.STATE_NAMES, logfile.STATE_UNITS)]
-            + [(p + n, "V") for p in ("w_", "u_", "u_cmd_") for n in logfile.INPUT_NAMES] + [("gyro_bias", "deg/s")])
+            + [(p + n, "V") for p in ("w_", "u_", "u_cmd_") for n in MOTOR_INPUTS] + [("gyro_bias", "deg/s")])
 
 
 def physical_columns(log_path, header, rows, gains_path=None):
@@ -88,7 +90,9 @@ def physical_columns(log_path, header, rows, gains_path=None):
         raise ExportError(str(e))
     except (KeyError, TypeError, ValueError, IndexError) as e:
         raise ExportError("%s: a header this version cannot interpret: %s: %s" % (log_path, type(e).__name__, e))
-    return PHYSICAL, np.hstack([sig["x_hat"], sig["w_hat"], sig["u"], sig["u_cmd"], bias_dps[:, None]])
+    act = list(ACTUATED_INPUTS)
+    return PHYSICAL, np.hstack([sig["x_hat"], sig["w_hat"][:, act], sig["u"][:, act], sig["u_cmd"][:, act],
+                                bias_dps[:, None]])
 
 
 def export_csv(log_path, out=None, gains_path=None):
