@@ -32,7 +32,11 @@ import numpy as np
 
 from tipbot_fw.course import channel_limits, transition_s
 
-ROW_BYTES = 48
+
+def smoothstep(x, dv, T):
+    """(rate change, acceleration) a change dv over T seconds has made at x = elapsed / T, x in
+    [0, 1] (module docstring): dv S(x) and dv S'(x) / T."""
+    return dv * x * x * (3.0 - 2.0 * x), dv / T * 6.0 * x * (1.0 - x)
 
 
 def _channel(targets, starts, period_s, n, lim):
@@ -55,8 +59,9 @@ def _channel(targets, starts, period_s, n, lim):
         k0 = min(int(math.ceil(t0 / period_s)), n + 1)
         k1 = min(int(math.floor((t0 + T) / period_s)) + 1, n + 1)
         x = (np.arange(k0, k1, dtype=np.float64) * period_s - t0) / T
-        rate[k0:k1] += dv * x * x * (3.0 - 2.0 * x)
-        acc[k0:k1] += dv / T * 6.0 * x * (1.0 - x)
+        d_rate, d_acc = smoothstep(x, dv, T)
+        rate[k0:k1] += d_rate
+        acc[k0:k1] += d_acc
         steps[k1] += dv
     rate += np.cumsum(steps)[:n + 1]
     pos = np.zeros(n + 1)
@@ -65,7 +70,7 @@ def _channel(targets, starts, period_s, n, lim):
 
 
 def course_plan(course, limits, track_m, period_s, ref_lsb, top):
-    """The plan (bytes: ROW_BYTES per tick, the reference of tick k at (k - 1) ROW_BYTES: the
+    """The plan (bytes: kalman.REF.size, 48, per tick, the reference of tick k at (k - 1) x 48: the
     first step's; the last row, at rest where the course ends, is held) of a course
     [(speed_mps, yaw_rate_rad_s, duration_s)] for a core whose reference integers have ref_lsb
     (SI per integer) and positions within +-top."""

@@ -79,8 +79,9 @@ N_IN = 7                 # the counts' changes dcount_r, dcount_l; the counts fr
 # reach, at most this whatever the period or a late tick: more is a failed read); a wheel's count
 # from its zero (2^23 counts, 23,300 turns, 5 km: more than a charge of the battery at full
 # speed; the drive reference's position has the same bound, the two together the 2^24 of the
-# firmware before the reference, so the row exponents are those of before); a joint's count from its zero (the joint limit stops the run first, checked here
-# before the product); the gyro's raw int16 rate (the loop's check: +-440 deg/s).
+# firmware before the reference, so the row exponents are those of before); a joint's count
+# from its zero (the joint limit stops the run first, checked here before the product); the
+# gyro's raw int16 rate (the loop's check: +-440 deg/s).
 DUTY_BOUND = 100
 WHEEL_STEP_BOUND = 2 ** 10
 MAX_COUNT_STEP = WHEEL_STEP_BOUND - 1
@@ -199,6 +200,11 @@ def predict_held(powers, x, u, periods):
     return x
 
 
+def ref_rows(data):
+    """The drive reference's rows (REF.size bytes each, one bytes object a row) of a plan's bytes."""
+    return [data[i:i + REF.size] for i in range(0, len(data), REF.size)]
+
+
 def reference_step(kal, xf, u_applied, m):
     """One tick written out (x^_{k-1}, u_{k-1} volts, m_k SI) -> (x^_k, u_k unsaturated)."""
     xp = kal.A.dot(xf) + kal.B.dot(u_applied)
@@ -248,8 +254,9 @@ class KalmanCore(object):
         self.meas_factor = meas
         # the reference's columns of the law (module docstring, "Driving"), and SI per integer
         self.law = np.hstack([kal.law_M, self._reference_columns(kal, n)])
-        self.ref_lsb = [self.rad_per_count[0] * kal.wheel_radius_m / REF_POS_STEPS,
-                        self.rad_per_count[1] * kal.wheel_radius_m / REF_POS_STEPS] + [2.0 ** -REF_RATE_EXP] * 4
+        # metres of wheel travel per count (the wheel's angle from its zero in x^ = xi + T m)
+        self.wheel_m = [wheel_m_per_count(kal.wheel_radius_m, self.polarity[i], self.counts_per_rot[i]) for i in (0, 1)]
+        self.ref_lsb = [m / REF_POS_STEPS for m in self.wheel_m] + [2.0 ** -REF_RATE_EXP] * 4
         self.plan = None        # the drive plan's rows (set_plan), or None: the robot stands
         self.next_row = None
         self.live = None
@@ -289,8 +296,6 @@ class KalmanCore(object):
         self.rows = layout or self.row_layout(gains, config)
         assert self.rows.q == self.q and self.rows.has_reference
         self.rows.ref_lsb = self.ref_lsb
-        # metres of wheel travel per count (the wheel's angle from its zero in x^ = xi + T m)
-        self.wheel_m = [wheel_m_per_count(kal.wheel_radius_m, self.polarity[i], self.counts_per_rot[i]) for i in (0, 1)]
         lim = config['limits']
         self.limits = (lim['th1_rad'], lim['th2_rad'], lim['th3_rad'])
         t1 = fx.round_half_up(lim['th1_rad'], self.q[2])
@@ -522,7 +527,7 @@ class KalmanCore(object):
         if len(plan) < REF.size or len(plan) % REF.size:
             raise ValueError('a drive plan is whole rows of {} bytes'.format(REF.size))
         # one bytes object a row, handed out by an iterator: a tick's cheapest copy on the brick
-        self.plan = [plan[i:i + REF.size] for i in range(0, len(plan), REF.size)]
+        self.plan = ref_rows(plan)
         self.next_row = itertools.chain(self.plan, itertools.repeat(self.plan[-1])).__next__
         self._driving()
 

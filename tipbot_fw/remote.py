@@ -28,7 +28,8 @@ import struct
 import numpy as np
 
 from tipbot_fw.course import channel_limits, transition_s
-from tipbot_fw.drive import ROW_BYTES, reference_ints
+from tipbot_fw.drive import reference_ints, smoothstep
+from tipbot_fw.kalman import ref_rows
 
 MAGIC = b'TBDR'
 COMMAND = struct.Struct('<4sIff')
@@ -137,8 +138,8 @@ class _Channel(object):
             self._start(self.pending, self.t0 + self.T)
         if self.T > 0.0:
             x = np.clip((t - self.t0) / self.T, 0.0, 1.0)
-            rate = self.v0 + self.dv * x * x * (3.0 - 2.0 * x)
-            acc = self.dv / self.T * 6.0 * x * (1.0 - x)
+            d_rate, acc = smoothstep(x, self.dv, self.T)
+            rate = self.v0 + d_rate
         else:
             rate = np.full(len(t), self.v0 + self.dv)
             acc = np.zeros(len(t))
@@ -177,7 +178,7 @@ class LivePlan(object):
         s, v, a = self.fwd.batch(t, self.dt)
         psi, w, al = self.yaw.batch(t, self.dt)
         data = reference_ints(s, psi, v, w, a, al, self.track_m, self.ref_lsb, self.top).tobytes()
-        self.rows.extend(data[i:i + ROW_BYTES] for i in range(0, len(data), ROW_BYTES))
+        self.rows.extend(ref_rows(data))
         self.made += n
 
 

@@ -155,26 +155,19 @@ def _study(args, final):
     t_start = time.perf_counter()
     ensure_gains(say)
     os.makedirs(args.out, exist_ok=True)
-    docs = []
-    ok = True
-    for name in args.scenarios:
-        sc = load_scenario(name)
-        say("scenario %s" % name)
-        doc = runner.run_and_write(sc, os.path.join(args.out, sc.name), sysfs=args.device == "sysfs", say=say)
-        docs.append(doc)
-        ok &= doc["expect_ok"]
-    load_docs = []
-    for name in args.load_scenarios:
-        sc = load_scenario(name)
-        say("scenario %s" % name)
-        load_docs.append(runner.run_and_write(sc, os.path.join(args.out, sc.name), sysfs=args.device == "sysfs",
-                                              say=say))
-    drive_docs = []
-    for name in args.drive_scenarios:
-        sc = load_scenario(name)
-        say("scenario %s" % name)
-        drive_docs.append(runner.run_and_write(sc, os.path.join(args.out, sc.name), sysfs=args.device == "sysfs",
-                                               say=say))
+    def run_all(names):
+        docs = []
+        for name in names:
+            sc = load_scenario(name)
+            say("scenario %s" % name)
+            docs.append(runner.run_and_write(sc, os.path.join(args.out, sc.name), sysfs=args.device == "sysfs",
+                                             say=say))
+        return docs
+
+    docs = run_all(args.scenarios)
+    ok = all(doc["expect_ok"] for doc in docs)
+    load_docs = run_all(args.load_scenarios)
+    drive_docs = run_all(args.drive_scenarios)
     roa_res = mc_res = mc_brick = margins_res = None
     if not args.no_robustness:
         rdir = os.path.join(args.out, "robustness")
