@@ -14,7 +14,7 @@ import dataclasses
 from hostsim.model import design, kalman
 from hostsim.model.equations import state_scale_to_si
 from hostsim.errors import DesignError, ParameterError
-from hostsim.model.gains import (DEFAULT_OUT_DIR, compare_documents, compare_with_file, design_gains,
+from hostsim.model.gains import (DEFAULT_OUT_DIR, INTEGRAL_TIME_S, compare_documents, compare_with_file, design_gains,
                                  main as gains_main, output_name, to_document)
 from hostsim.model.paper_check import TOLERANCE, cross_spectral_radii, run as paper_check_run
 from hostsim.model.params import DEFAULT_PARAMS_PATH, load_params
@@ -96,12 +96,19 @@ def test_finite_horizon_converges_to_steady_state_gain(designs):
 
 
 def test_steady_state_feedforward_is_k_w(designs):
-    """With a constant known w, the recursion's feedforward far from the end is -K_w w."""
+    """With a constant known w, the recursion's feedforward far from the end is -K_w w (the
+    physical design's on its model with the integrators of the wheel positions)."""
     g = designs["physical"]
     w = np.array([1.0, 1.0, 0.0, 0.0, 0.0])
     horizon = 20000
-    k_seq, ff, _ = design.finite_horizon_lqr(g.A, g.B, g.Q, g.R, g.P,
-                                             w_seq=np.tile(w, (horizon, 1)), e_mat=g.E)
+    a, b = design.integrator_model(g.A, g.B, g.ts_s)
+    e = design.integrator_model(g.A, g.E, g.ts_s)[1]
+    q = np.zeros(a.shape)
+    q[:10, :10] = g.Q
+    q[10:, 10:] = np.eye(2) * g.Q[0, 0] / INTEGRAL_TIME_S ** 2
+    assert g.P.shape == (12, 12)
+    k_seq, ff, _ = design.finite_horizon_lqr(a, b, q, g.R, g.P, w_seq=np.tile(w, (horizon, 1)), e_mat=e)
+    assert np.allclose(k_seq[0][:, :10], g.K, rtol=1e-6, atol=1e-9)
     assert np.allclose(ff[0], -g.K_w @ w, rtol=1e-6, atol=1e-9)
     assert np.abs(ff[0]).max() > 0.1  # the disturbance is not negligible
 
@@ -142,7 +149,8 @@ def test_other_sampling_period_goes_to_its_own_file_and_holds_both_models(design
 def test_the_kalman_loop_holds_every_plant_of_the_uncertainty_set(designs, variant, params):
     g = designs[variant]
     kd = g.kalman
-    assert kd.n == 13 and kd.observability_rank == 13
+    assert kd.n_filter == 13 and kd.observability_rank == 13
+    assert kd.n == 13 + 2 * (variant == "physical")       # the physical law's integrators
     assert np.max(np.abs(kd.filter_eigenvalues)) < 1
     m = kalman.UncertaintySet(params, g.ts_s).margins(kd)
     assert m.robust and m == g.margins
@@ -155,7 +163,7 @@ def margins_with(g, params, **noise):
     t = state_scale_to_si(g.variant)
     ti = np.linalg.inv(t)
     ns = dataclasses.replace(g.kalman.noise, **noise)
-    kd = kalman.design_kalman(t @ g.A @ ti, t @ g.B, g.K @ ti, g.K_w, params["rw_m"], g.ts_s, ns)
+    kd = kalman.design_kalman(t @ g.A @ ti, t @ g.B, g.K @ ti, g.K_w, params["rw_m"], g.ts_s, ns, g.kalman.integral)
     return kalman.UncertaintySet(params, g.ts_s).margins(kd)
 
 

@@ -164,12 +164,16 @@ def test_the_reference_enters_the_duties_as_the_law_says(physical):
     b.set_reference(ints)
     da, _ = a.step((1, 2, 0, 0), (0, 3), buf, 0)
     db, _ = b.step((1, 2, 0, 0), (0, 3), buf, 0)
-    k_a = physical.kalman.K
-    volts = k_a[:, 0:2].dot(d_ref) + ref.G.dot(r)
+    kal = physical.kalman
+    k_a, nf = kal.K, kal.n_filter
+    # the integrators take in -ts d_ref this tick (z integrates d^ - d_ref), the law -K_z of that
+    volts = (k_a[:, 0:2] + physical.ts_s * k_a[:, nf:]).dot(d_ref) + ref.G.dot(r)
     expected = [volts[i] * 100.0 / 8.0 * b.polarity[i] for i in range(N_U)]
     assert all(abs((db[i] - da[i]) - expected[i]) <= 1.0 for i in range(N_U)), (da, db, expected)
     assert max(abs(e) for e in expected) > 5       # a test that sees the term
-    assert list(a.v[N_U:N_U + a.n]) == list(b.v[N_U:N_U + b.n])
+    assert nf == kal.n - 2 and list(a.v[N_U:N_U + nf]) == list(b.v[N_U:N_U + nf])
+    dz = [(int(b.v[N_U + nf + i]) - int(a.v[N_U + nf + i])) * float(b.state_lsb[nf + i]) for i in (0, 1)]
+    assert dz == pytest.approx(list(-physical.ts_s * d_ref), rel=1e-3)
 
 
 def test_gains_without_a_reference_cannot_drive(tmp_path, capsys):

@@ -1,5 +1,6 @@
 """tipbot_fw.kalman: the fixed-point core equals the readable filter and law; the filter tells the
 gyro bias from the lean and follows a drifting bias; no sum of the product can overflow."""
+import copy
 import math
 
 import numpy as np
@@ -36,7 +37,7 @@ def xi_step(kal, M, xi, u, m_prev, m):
 @pytest.mark.parametrize('name', ['physical', 'paper'])
 def test_folded_matrix_equals_the_filter_and_the_law(name):
     kal = committed(name).kalman
-    M = fold(kal.A, kal.B, kal.C, kal.L, kal.K, kal.wheel_radius_m)
+    M = fold(kal.A, kal.B, kal.C, kal.L, kal.K, kal.wheel_radius_m, kal.n - kal.n_filter)
     np.testing.assert_allclose(kal.law_M, M, rtol=0, atol=1e-9 * np.abs(M).max())   # the file's
     rng = np.random.RandomState(3)
     T = np.zeros((kal.n, 5))
@@ -58,14 +59,18 @@ def test_folded_matrix_equals_the_filter_and_the_law(name):
 
 
 def test_the_absolute_wheel_angle_drops_out_of_the_update():
-    # (F - I) T + L has zero wheel columns: the model does not depend on where the robot stands
-    kal = committed('physical').kalman
-    n = kal.n
+    # (F - I) T + L has zero wheel columns on the filter's rows: the model does not depend on
+    # where the robot stands; the integrators' rows add ts R_w phi (they integrate where it is)
+    g = committed('physical')
+    kal = g.kalman
+    n, nf = kal.n, kal.n_filter
+    assert nf == n - 2
     f = (np.eye(n) - kal.L.dot(kal.C)).dot(kal.A)
     T = np.zeros((n, 5))
     T[0, 0] = T[1, 1] = kal.wheel_radius_m
     w = (f - np.eye(n)).dot(T) + kal.L
-    assert np.abs(w[:, :2]).max() < 1e-9 * np.abs(kal.L).max()
+    assert np.abs(w[:nf, :2]).max() < 1e-9 * np.abs(kal.L).max()
+    np.testing.assert_allclose(w[nf:, :2], g.ts_s * kal.wheel_radius_m * np.eye(2), rtol=1e-9, atol=1e-12)
 
 
 # ------------------------------------------------------------------ the fixed-point core
@@ -132,18 +137,22 @@ def test_the_fixed_point_core_follows_the_readable_filter_step_by_step():
     rpc = 2 * math.pi / 360
     zeros = out[0][3]
     xf = np.array(core.x0)
-    worst_x = worst_u = 0.0
+    worst_x = worst_u = worst_z = 0.0
+    nf = kal.n_filter
     for k in range(1, len(out)):
         enc, gyro = out[k][3], out[k][4]
         m = np.array([(enc[0] - zeros[0]) * rpc, (enc[1] - zeros[1]) * rpc, 0.01 + (enc[2] - zeros[2]) * rpc,
                       (enc[3] - zeros[3]) * rpc, gyro[1] * DEG])
         u_prev = np.array(out[k - 1][2]) * 8.0 / 100
         xf, u = reference_step(kal, xf, u_prev, m)
-        worst_x = max(worst_x, np.max(np.abs(np.array(out[k][1]) - xf) / np.array(kal.state_bounds)))
+        err = np.abs(np.array(out[k][1]) - xf) / np.array(kal.state_bounds)
+        worst_x, worst_z = max(worst_x, np.max(err[:nf])), max(worst_z, np.max(err[nf:]))
         worst_u = max(worst_u, np.max(np.abs(np.array(out[k][5]) - u * 100 / 8.0)))
-    # states within 1e-7 of their ranges (the resolution is 2^-32 of them), commands within
+    # states within 1e-7 of their ranges (the resolution is 2^-32 of them), the integrators,
+    # which add up every tick's rounding, within half a resolution step a tick; commands within
     # 1e-3 of a duty step (0.08 mV at 8 V) before their rounding
     assert worst_x < 1e-7
+    assert 0 < worst_z < 0.5 * len(out) * 2.0 ** -32
     assert worst_u < 1e-3
     assert max(abs(np.array(o[2])).max() for o in out) > 3      # the law did work
 
@@ -228,7 +237,7 @@ def test_a_wrong_calibrated_bias_is_corrected_and_not_taken_for_a_lean():
     core, out = run_core(gains, robot, 30.0, bias0_dps=0.0)
     x = np.array([o[0] for o in out])
     xh = np.array([o[1] for o in out])
-    bias = xh[:, -1] / DEG
+    bias = xh[:, core.nf - 1] / DEG
     assert abs(bias[-400:].mean() - 1.0) < 0.03           # found within a few percent
     assert np.abs(x[-2000:, 2]).max() < 0.005              # the robot stands upright...
     assert abs(x[-1, 0]) < 0.05                            # ...and did not roll away
@@ -245,7 +254,7 @@ def test_a_lean_at_the_start_is_found_and_not_taken_for_a_bias():
     err = np.abs(xh[:, 2] - x[:, 2])
     assert err[0] == pytest.approx(0.02, abs=1e-9)
     assert err[400:].max() < 0.005                         # the tilt found within 2 s
-    bias_err = np.abs(xh[:, -1] / DEG - 1.0)
+    bias_err = np.abs(xh[:, core.nf - 1] / DEG - 1.0)
     assert bias_err[-1000:].max() < 0.05                   # and the bias not left learning it
 
 
@@ -257,7 +266,57 @@ def test_a_drifting_bias_is_followed():
     x = np.array([o[0] for o in out])
     xh = np.array([o[1] for o in out])
     t = np.arange(len(out)) * gains.ts_s
-    lag = (1.0 + 0.01 * t) - xh[:, -1] / DEG
+    lag = (1.0 + 0.01 * t) - xh[:, core.nf - 1] / DEG
     assert np.abs(lag[2000:]).max() < 0.15                 # deg/s: follows with a small lag
     assert abs(0.5 * (x[-1, 0] + x[-1, 1])) < 0.05         # m: rolled less than 5 cm
-    assert np.abs(x[2000:, 2]).max() < 0.005
+    # upright (an integrated drift would be 0.6 deg/s for a minute: 0.3 rad): the integrators
+    # hold the wheels where they started, so the small lag of the bias shows as lean, not travel
+    assert np.abs(x[2000:, 2]).max() < 0.01
+
+
+# ------------------------------------------------------------------ integral action
+def without_integral_action(gains):
+    """The same gains with the integrators' feedback taken out (their columns of K_a zero)."""
+    out = copy.deepcopy(gains)
+    kal = out.kalman
+    kal.K[:, kal.n_filter:] = 0.0
+    kal.law_M = fold(kal.A, kal.B, kal.C, kal.L, kal.K, kal.wheel_radius_m, kal.n - kal.n_filter)
+    return out
+
+
+def test_the_integrators_take_out_an_offset_the_filter_cannot_see():
+    # joint 2's zero is 0.05 rad off (the firmware is told th2 = 0.05 at the start, the link is
+    # at 0): an offset no estimator can see; proportional feedback alone holds the robot off its
+    # start to balance it, the integrators bring the wheels back
+    gains = committed('physical')
+    config = S.fw_config(start_pose_rad={'th1': 0.0, 'th2': 0.05})
+    ends = {}
+    for name, g in (('integral', gains), ('proportional', without_integral_action(gains))):
+        robot = Robot(g, np.zeros(10), bias_dps=1.0, noise_dps=0.3)
+        core, out = run_core(g, robot, 20.0, config=config)
+        x = np.array([o[0] for o in out])
+        ends[name] = abs(0.5 * (x[-400:, 0] + x[-400:, 1]).mean())
+        assert np.abs(x[:, 2]).max() < 0.05      # balanced (link 1 leans to put the mass over the wheels)
+    assert ends['proportional'] > 0.01          # m: held off its start
+    assert ends['integral'] < 0.2 * ends['proportional'] and ends['integral'] < 0.005
+
+
+def test_the_integrators_stay_within_their_authority_when_the_wheels_are_held():
+    # the wheels held 10 cm ahead of their zero for 30 s (a hand, a wall): without a limit the
+    # integrators would reach 3 m s; they stop at kalman.integral.limit_m_s
+    gains = committed('physical')
+    core = KalmanCore(gains, S.fw_config())
+    core.set_gyro_bias(0.0)
+    core.set_battery(8.0)
+    buf = bytearray(core.rows.row_bytes)
+    counts = int(round(0.10 / abs(core.wheel_m[0])))
+    core.start((0, 0, 0, 0), (0, 0), buf, 0)
+    nf, top = core.nf, core.guard
+    seen = []
+    for _ in range(int(30.0 / gains.ts_s)):
+        core.step((counts * core.polarity[0], counts * core.polarity[1], 0, 0), (0, 0), buf, 0)
+        seen.append([int(core.v[kalman.N_U + nf + i]) for i in (0, 1)])
+    seen = np.array(seen)
+    assert np.abs(seen).max() == top                        # reached the limit and held there
+    assert top * float(core.state_lsb[nf]) == pytest.approx(gains.kalman.integral_limit_m_s, rel=1e-6)
+    assert np.all(np.abs(seen[-100:]) == top)

@@ -230,7 +230,8 @@ def _kalman_check(check):
 
 def _kalman_measures(g, k):
     from tipbot_fw.kalman import measurement_matrix    # here: tipbot_fw.kalman imports this module
-    if np.max(np.abs(k.C - measurement_matrix(k.n, k.wheel_radius_m))) > _ZERO_RTOL * max(1.0, 1.0 / k.wheel_radius_m):
+    if np.max(np.abs(k.C - measurement_matrix(k.n, k.wheel_radius_m, k.n - k.n_filter))) > \
+            _ZERO_RTOL * max(1.0, 1.0 / k.wheel_radius_m):
         return ('must measure [d/R_w - th1 (2), th2, th3, th1_dot + gyro_bias] with R_w = '
                 'kalman.wheel_radius_m')
     return None
@@ -245,20 +246,23 @@ def _kalman_robot(g, k):
 
 
 def _kalman_law(g, k):
-    """K_a = [K_act, K_w_act on the estimated disturbances, 0 on the bias]: the file's own law."""
+    """K_a = [K_act, K_w_act on the estimated disturbances, 0 on the bias, the integrators']: the
+    file's own law (its integrators' gains are the block's own)."""
     act = ACTUATED_INPUTS
-    law = np.hstack([g.K[act, :], g.K_w[np.ix_(act, [act[i] for i in k.disturbance_inputs])], np.zeros((4, 1))])
+    law = np.hstack([g.K[act, :], g.K_w[np.ix_(act, [act[i] for i in k.disturbance_inputs])], np.zeros((4, 1)),
+                     k.K[:, k.n_filter:]])
     err = np.abs(k.K - law)
     if np.max(err) > 1e-9 * max(1.0, float(np.max(np.abs(law)))):
         j = int(np.unravel_index(np.argmax(err), err.shape)[1])
         return 'is not the file\'s law: its column {} ({}) differs from the file\'s {} (in SI)'.format(
-            j, k.state_names[j], 'K' if j < 10 else ('K_w' if j < k.n - 1 else 'zero of the gyro bias'))
+            j, k.state_names[j], 'K' if j < 10 else ('K_w' if j < k.n_filter - 1 else 'zero of the gyro bias'))
     return None
 
 
 def _kalman_stable(g, k):
+    nf = k.n_filter     # the integrators are no estimate: their own "error" does not decay
     with np.errstate(all='ignore'):     # an overflow is an inf, which the check refuses
-        rho = spectral_radius((np.eye(k.n) - k.L.dot(k.C)).dot(k.A))
+        rho = spectral_radius((np.eye(nf) - k.L[:nf].dot(k.C[:, :nf])).dot(k.A[:nf, :nf]))
     if rho >= 1.0:
         return 'gives an unstable filter: spectral radius of (I - L C) A is {:.6f} >= 1'.format(rho)
     return None
@@ -273,7 +277,7 @@ def _kalman_wheel(g, k):
 
 def _kalman_fold(g, k):
     from tipbot_fw.kalman import fold
-    ref = fold(k.A, k.B, k.C, k.L, k.K, k.wheel_radius_m)
+    ref = fold(k.A, k.B, k.C, k.L, k.K, k.wheel_radius_m, k.n - k.n_filter)
     err = np.abs(k.law_M - ref) / np.maximum(1e-300, np.abs(ref).max(axis=1, keepdims=True))
     if np.max(err) > _LAW_RTOL:
         i, j = np.unravel_index(np.argmax(err), err.shape)
@@ -285,9 +289,27 @@ def _kalman_fold(g, k):
 # The Section 6 detector's (above), then the Kalman filter's: what it measures, the same robot
 # and law as the file's own (so the design's closed loop is the stable A - B K checked above),
 # a stable filter, and the firmware's folded law made of exactly these matrices.
+def _kalman_integral(g, k):
+    """The integrators integrate the wheel positions' estimate: z+ = z + ts d^ (A, B, L rows of z
+    ts times those of d, C blind to z), nothing else reads them but the law."""
+    nf = k.n_filter
+    if nf == k.n:
+        return None
+    ts = g.ts_s
+    want_a = ts * k.A[0:2]
+    want_a[:, nf:] = np.eye(2)
+    parts = ((k.A[nf:], want_a), (k.B[nf:], ts * k.B[0:2]), (k.L[nf:], ts * k.L[0:2]),
+             (k.A[:nf, nf:], 0.0), (k.C[:, nf:], 0.0))
+    for have, want in parts:
+        if np.max(np.abs(have - want)) > 1e-9 * max(1.0, float(np.max(np.abs(want)))):
+            return 'has integrators z_r, z_l that are not z + ts d^ at ts_s = {!r} s'.format(ts)
+    return None
+
+
 STRUCTURE_CHECKS = [('G_w', _disturbance_inverse), ('L2', _detector_l2),
                     ('kalman.wheel_radius_m', _kalman_check(_kalman_wheel)), ('kalman.C', _kalman_check(_kalman_measures)), ('kalman.A', _kalman_check(_kalman_robot)),
                     ('kalman.K', _kalman_check(_kalman_law)), ('kalman.L', _kalman_check(_kalman_stable)),
+                    ('kalman.integral', _kalman_check(_kalman_integral)),
                     ('kalman.law.M', _kalman_check(_kalman_fold))]
 
 # The wheels in the model and in the recorded parameters: a wheel's back-EMF (and viscous
@@ -378,6 +400,8 @@ KALMAN_KEYS = ('state_names', 'state_units', 'measurement_names', 'measurement_u
 _X_NAMES = ('d_r', 'd_l', 'th1', 'th2', 'th3', 'd_r_dot', 'd_l_dot', 'th1_dot', 'th2_dot', 'th3_dot')
 _X_UNITS = ('m', 'm', 'rad', 'rad', 'rad', 'm/s', 'm/s', 'rad/s', 'rad/s', 'rad/s')
 _W_NAMES = ('w_r', 'w_l', 'w_th2', 'w_th3')
+# the law's integrators of the wheel positions (tipbot_fw.kalman, "Integral action"), optional
+_Z_NAMES = ('z_r', 'z_l')
 _MEASUREMENTS = (('phi_r', 'rad'), ('phi_l', 'rad'), ('th2', 'rad'), ('th3', 'rad'), ('gyro', 'rad/s'))
 # The folded law must equal the fold of the block's matrices to this fraction of its row's
 # largest entry (the file has 12 significant digits; the fold sums a few dozen products).
@@ -388,7 +412,9 @@ _KALMAN_ATTRIBUTES = {'law.M': 'law_M', 'law.state_bounds': 'state_bounds'}
 
 class KalmanGains(object):
     """The validated `kalman` block: n, state_names, state_units, wheel_radius_m, A (n x n),
-    B (n x 4), C (5 x n), L (n x 5), K (4 x n), law_M ((4 + n) x (4 + n + 7)), state_bounds."""
+    B (n x 4), C (5 x n), L (n x 5), K (4 x n), law_M ((4 + n) x (4 + n + 7)), state_bounds;
+    n_filter (the filter's states; the law's integrators z_r, z_l after them, if any) and
+    integral_limit_m_s (their authority, None without)."""
 
 
 def _kalman_block(doc, f):
@@ -399,17 +425,20 @@ def _kalman_block(doc, f):
     names = doc['state_names']
     n = len(names) if isinstance(names, list) else 0
     k.state_names = list(f.check('kalman.state_names', names, fields.strings(n)))
-    w = names[10:-1]
-    if not (11 <= n <= 15 and tuple(names[:10]) == _X_NAMES and names[-1] == 'gyro_bias'
+    nz = len(_Z_NAMES) if tuple(names[-len(_Z_NAMES):]) == _Z_NAMES else 0
+    nf = n - nz
+    w = names[10:nf - 1]
+    if not (11 <= nf <= 15 and tuple(names[:10]) == _X_NAMES and names[nf - 1] == 'gyro_bias'
             and all(v in _W_NAMES for v in w) and len(set(w)) == len(w)):
-        f.fail('kalman.state_names', 'must be the 10 states, some of {} and gyro_bias, got {!r}'.format(
-            ', '.join(_W_NAMES), names))
-    units = list(_X_UNITS) + ['V'] * len(w) + ['rad/s']
+        f.fail('kalman.state_names', 'must be the 10 states, some of {}, gyro_bias and optionally {}, got {!r}'.format(
+            ', '.join(_W_NAMES), ', '.join(_Z_NAMES), names))
+    units = list(_X_UNITS) + ['V'] * len(w) + ['rad/s'] + ['m s'] * nz
     if doc['state_units'] != units:
         f.fail('kalman.state_units', 'must be {!r} (SI), got {!r}'.format(units, doc['state_units']))
     k.state_units = units
     k.disturbance_inputs = [_W_NAMES.index(v) for v in w]
     k.n = n
+    k.n_filter = nf
     if doc['measurement_names'] != [m for m, _ in _MEASUREMENTS] or \
             doc['measurement_units'] != [u for _, u in _MEASUREMENTS]:
         f.fail('kalman.measurement_names', 'must be {} (units {})'.format(
@@ -426,6 +455,13 @@ def _kalman_block(doc, f):
     if min(k.state_bounds) <= 0:
         f.fail('kalman.law.state_bounds', 'must be positive, got {!r}'.format(k.state_bounds))
     k.reference = _reference_block(doc['reference'], f) if 'reference' in doc else None
+    k.integral_limit_m_s = None
+    if nz:
+        f.require(doc, ('integral',), 'kalman.')
+        block = f.check('kalman.integral', doc['integral'], fields.obj)
+        f.require(block, ('limit_m_s',), 'kalman.integral.')
+        k.integral_limit_m_s = f.number('kalman.integral.limit_m_s', block['limit_m_s'], lo=0.0,
+                                        hi=min(k.state_bounds[nf:]) / 2.0)
     return k
 
 

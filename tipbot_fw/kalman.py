@@ -53,6 +53,18 @@ law columns, in 1/REF_POS_STEPS of a count), its wheel speeds and accelerations 
 gains' feedforward G (hostsim.model.reference: K_a x_ref's other entries plus u_ff, per unit of
 r): six more integers in v, six more columns of M, zero in the filter's rows (the estimate is of
 the robot, wherever the reference is). Standing, they are zero and the tick is the same to the bit.
+
+Integral action (the physical gains; hostsim.model.kalman, "integral"): the EV3 has no absolute
+tilt sensor, so a start a degree off upright or a gyro that reads rates unevenly leaves the
+tilt estimate off for the filter's slowest mode (seconds), and a proportional law then holds
+the robot centimetres off its reference. Two more carried states integrate each wheel's
+position error, z_k = z_{k-1} + ts (d^_k - d_ref_k) (m s), and the law feeds them back (K_a's
+last columns): any constant offset, of the estimate or of the floor, is taken out. They are
+the last rows of the same product (A's row of z is ts times d's, L's ts times d's, so that z
+sees d^_k of this very tick); they are not estimated (no measurement, no filter gain of their
+own), their wheel-angle columns are ts R_w, not zero, and skip() holds them. Each tick keeps
+them within +-kalman.integral.limit_m_s, the authority the gains give them (a share of u_max):
+a hand or a wall holding the robot cannot wind them up.
 """
 import itertools
 import math
@@ -105,8 +117,10 @@ MEASUREMENTS = ('phi_r', 'phi_l', 'th2', 'th3', 'gyro')
 
 _IN = struct.Struct('<7q')
 REF = struct.Struct('<6q')
-_HEAD = struct.Struct('<7q')          # duty_r..duty_3, xi_d_r, xi_d_l, xi_th1
+# duty_r..duty_3, xi_th1 and the two guarded states of step() (the integrators', else the joints')
+_HEAD = '<4q16xq{}x2q'
 _DUTIES = struct.Struct('<4q')
+_PAIR = struct.Struct('<2q')
 _ROW_FLOATS = struct.Struct('<3d')    # battery_v, flags, gyro_angle
 # A live plan's rows a stall's skip leaves: more than the ticks the loop may go without its side
 # task, which makes them (tipbot_fw.loop.SIDE_WAIT_S: 10 ticks at 5 ms), so a tick always has one;
@@ -116,13 +130,14 @@ LIVE_KEEP_ROWS = 12
 SKIP_POWERS = 7
 
 
-def measurement_matrix(n, rw_m):
+def measurement_matrix(n, rw_m, integrators=0):
     """C_a (5 x n): [phi_r, phi_l] = d / R_w - th1 (the wheel encoders sit on link 1), th2, th3,
-    gyro = th1_dot + the bias (the last state)."""
+    gyro = th1_dot + the bias (the filter's last state; the law's integrators, after it, are
+    not measured)."""
     c = np.zeros((N_MEAS, n))
     c[0, 0] = c[1, 1] = 1.0 / rw_m
     c[0, 2] = c[1, 2] = -1.0
-    c[2, 3] = c[3, 4] = c[4, 7] = c[4, n - 1] = 1.0
+    c[2, 3] = c[3, 4] = c[4, 7] = c[4, n - integrators - 1] = 1.0
     return c
 
 
@@ -141,10 +156,13 @@ def augmented_model(a, b_act, rw_m, dist_inputs):
     return aa, ba, measurement_matrix(n, rw_m)
 
 
-def fold(a, b, c, gain, k, rw_m):
+def fold(a, b, c, gain, k, rw_m, integrators=0):
     """The per-tick matrix of the module docstring (SI, float64) from the filter's A_a (n x n),
-    B_a (n x 4), C_a (5 x n), gain L (n x 5), law K_a (4 x n) and the wheel radius of C_a."""
+    B_a (n x 4), C_a (5 x n), gain L (n x 5), law K_a (4 x n) and the wheel radius of C_a; the
+    last `integrators` states are the law's integrators of the wheel positions (module
+    docstring, "Integral action"), which depend on where the robot stands."""
     n = a.shape[0]
+    nf = n - integrators
     ikc = np.eye(n) - gain.dot(c)
     f = ikc.dot(a)
     g_u = ikc.dot(b)
@@ -152,7 +170,9 @@ def fold(a, b, c, gain, k, rw_m):
     t[0, 0] = t[1, 1] = rw_m
     ft = f.dot(t)
     w = ft + gain - t
-    w[:, 0:2] = 0.0     # exactly zero by construction (module docstring); what is left is round-off
+    w[:nf, 0:2] = 0.0   # exactly zero by construction (module docstring); what is left is round-off
+    # an integrator adds ts d_k: on the wheel angles, ts R_w (A's row of it times T, exactly)
+    w[nf:, 0:2] = a[nf:, 0:2].dot(t[0:2, 0:2])
     state = np.hstack([g_u, f, -ft[:, 0:2], w])
     out = -k.dot(state)
     out[:, N_U + n + 2:] -= k.dot(t)
@@ -236,6 +256,7 @@ class KalmanCore(object):
         self.gains = gains
         self.kal = kal
         n = self.n = kal.n
+        nf = self.nf = kal.n_filter     # the filter's states; the law's integrators after them
         self.state_names = list(kal.state_names)
         self.state_units = list(kal.state_units)
         self.polarity = motor_polarity(config)
@@ -253,7 +274,7 @@ class KalmanCore(object):
                 self.rad_per_count[2], self.rad_per_count[3], gyro_rad]
         self.meas_factor = meas
         # the reference's columns of the law (module docstring, "Driving"), and SI per integer
-        self.law = np.hstack([kal.law_M, self._reference_columns(kal, n)])
+        self.law = np.hstack([kal.law_M, self._reference_columns(kal)])
         # metres of wheel travel per count (the wheel's angle from its zero in x^ = xi + T m)
         self.wheel_m = [wheel_m_per_count(kal.wheel_radius_m, self.polarity[i], self.counts_per_rot[i]) for i in (0, 1)]
         self.ref_lsb = [m / REF_POS_STEPS for m in self.wheel_m] + [2.0 ** -REF_RATE_EXP] * 4
@@ -279,6 +300,14 @@ class KalmanCore(object):
         self.n_v = one + 1 + N_REF
         self.v_bounds = v_bounds[:one] + [1.0] + v_bounds[one:]
         self.shifts = np.array(self.shift_list, dtype=np.int64)
+        # the guarded pair (step()): the integrators, kept within the authority the gains give them
+        # (anti-windup: a hand or a wall holding the robot cannot wind them up), or without
+        # integrators the joints' xi (after xi_th1), within the fixed-point range (as skip() keeps it)
+        guarded = nf if n > nf else 3
+        self._head = struct.Struct(_HEAD.format(8 * (guarded - 3))).unpack_from
+        top = 2 ** fx.STATE_BITS
+        self.guard = (min(top, fx.round_half_up(kal.integral_limit_m_s, self.q[nf])) if n > nf else top)
+        self._guard_off = 8 * (N_U + guarded)
         self.v_bytes = bytearray(8 * self.n_v)
         self.v = np.frombuffer(self.v_bytes, dtype='<i8')
         self.v[one] = 1
@@ -308,11 +337,11 @@ class KalmanCore(object):
         self.x0 = None
         # the model's prediction with the input held, for skip(): A's wheel-position columns
         # are the identity's to the bit (checked), which is what lets xi pass through it
-        a = np.array(kal.A, dtype=float)
-        if not (a[:, 0:2] == np.eye(n)[:, 0:2]).all():
+        a = np.array(kal.A, dtype=float)[:nf, :nf]
+        if not (a[:, 0:2] == np.eye(nf)[:, 0:2]).all():
             raise ValueError('kalman.A: the wheel positions must not act on the model (columns d_r, d_l '
                              'of the identity)')
-        self._powers = prediction_powers(a, kal.B, SKIP_POWERS)
+        self._powers = prediction_powers(a, kal.B[:nf], SKIP_POWERS)
         self._state_max = 2 ** fx.STATE_BITS
 
     def _joint_bounds(self, lim):
@@ -330,14 +359,16 @@ class KalmanCore(object):
         return tuple(out)
 
     @staticmethod
-    def _reference_columns(kal, n):
+    def _reference_columns(kal):
         """The law's columns of the reference (SI: per rad of wheel angle, per m/s, per m/s^2):
-        the reference positions act on the duties exactly as the wheel angles do, with the other
-        sign (u = -K_a (x^ - x_ref): the same columns of the law); the speeds and accelerations
-        by the gains' feedforward G. The filter's rows have none: the estimate is the robot's."""
+        the reference positions act on the duties and the integrators exactly as the wheel angles
+        do, with the other sign (u = -K_a (x^ - x_ref), z integrates d^ - d_ref: the same columns
+        of the law); the speeds and accelerations by the gains' feedforward G. The filter's rows
+        have none (their wheel-angle columns are zero): the estimate is the robot's."""
+        n = kal.n
         ref = np.zeros((N_U + n, N_REF))
         counts = N_U + n + 2
-        ref[:N_U, 0:2] = -kal.law_M[:N_U, counts:counts + 2]
+        ref[:, 0:2] = -kal.law_M[:, counts:counts + 2]
         if kal.reference is not None:
             ref[:N_U, 2:] = kal.reference.G
         return ref
@@ -399,7 +430,8 @@ class KalmanCore(object):
         th1, th2, th3 = self.pose
         rw = self.kal.wheel_radius_m
         # the bias in the filter's frame: the reading times gyro_sign, in rad/s
-        return [rw * th1, rw * th1, th1, th2, th3] + [0.0] * (self.n - 6) + [self.meas_factor[6] * self.bias0]
+        return ([rw * th1, rw * th1, th1, th2, th3] + [0.0] * (self.nf - 6) + [self.meas_factor[6] * self.bias0]
+                + [0.0] * (self.n - self.nf))
 
     def start(self, enc, gyro, buf, offset):
         """First tick: the counts are the encoder zeros; xi_0 = x^_0 (the readings are zero
@@ -443,7 +475,11 @@ class KalmanCore(object):
             return self._row(JOINT_LIMIT, gyro[0], buf, offset)
         self.dot(self.v_in, self.acc)
         self.rshift(self.acc, self.shifts, self.v_head)
-        q0, q1, q2, q3, _, _, th1 = _HEAD.unpack_from(self.v_bytes, 0)
+        q0, q1, q2, q3, th1, g0, g1 = self._head(self.v_bytes, 0)
+        top = self.guard
+        if not (-top <= g0 <= top and -top <= g1 <= top):
+            # the duties of this tick saw the pair as it came; the next product sees it kept
+            _PAIR.pack_into(self.v_bytes, self._guard_off, max(-top, min(top, g0)), max(-top, min(top, g1)))
         return self._finish((q0, q1, q2, q3), th1, gyro[0], buf, offset)
 
     def _finish(self, q, th1, gyro_angle, buf, offset, pack=False):
@@ -491,7 +527,7 @@ class KalmanCore(object):
         elif self.next_row is not None:     # the reference follows the clock, not the ticks
             for _ in range(periods):
                 self.next_row()
-        n = self.n
+        n = self.nf     # the filter's states; the integrators hold through a stall
         v = self.v
         lsb = self.state_lsb
         volts = self.battery_v / 100.0

@@ -43,22 +43,30 @@ def replay(header, rows, gains, check_gains=True):
     """
     core = core_from_header(header, gains, check_gains)
     layout = core.rows
-    out = np.array(rows, dtype=float)
+    logged = _logged_layout(header, layout)
     one = logfile.LogBuffer(1, layout)
     loop_bits = logfile.FLAG_BITS['overrun'] | (logfile.SKIP_MAX << logfile.SKIP_SHIFT)
     flags = layout.col('flags')
-    readings = _reader(layout)
+    readings = _reader(logged)
     starts = dict(logfile.segment_rows(header, len(rows)))
     # the drive reference the run followed, from its log (a log of a firmware before it has none:
     # its columns end before the reference's)
     driven = getattr(layout, 'has_reference', False) and 'reference' in header
+    if logged is layout:
+        out = np.array(rows, dtype=float)
+    else:
+        # a what-if with gains of other states (the integrators): their rows, the log's times
+        if len(starts) > 1 or set(starts.values()) != {0}:
+            raise ValueError('a ring-buffer log replays only through gains of the same states as its own')
+        out = np.zeros((len(rows), len(layout.columns)))
+        out[:, 0:2] = np.asarray(rows, dtype=float)[:, 0:2]
     width = out.shape[1]
     for i in range(len(rows)):
         enc, gyro, battery_v = readings(rows[i])
         if battery_v != core.battery_v:
             core.set_battery(battery_v)
         if driven:
-            core.set_reference(layout.reference_ints(rows[i]))
+            core.set_reference(logged.reference_ints(rows[i]))
         loops = int(rows[i, flags]) & loop_bits
         if i not in starts:
             core.step(enc, gyro, one.data, 0)
@@ -74,6 +82,22 @@ def replay(header, rows, gains, check_gains=True):
         out[i, flags] = int(out[i, flags]) | loops
         core.skip(loops >> logfile.SKIP_SHIFT)
     return out
+
+
+def _logged_layout(header, layout):
+    """The layout of the log's own rows: `layout` (the replaying core's) when the log has the
+    same columns, else the one its header describes."""
+    names = [c['name'] for c in header['columns']]
+    if names[:len(layout.column_names)] == list(layout.column_names):
+        return layout
+    return logfile.layout_from_header(header)
+
+
+def what_if_header(header, gains):
+    """The header of rows that replay() made with other gains (their core's columns)."""
+    layout = core_from_header(header, gains, False).rows
+    return dict(header, columns=logfile.columns_header(layout.columns), state_names=layout.header().get(
+        'state_names', header.get('state_names')))
 
 
 def _reader(layout):
@@ -116,7 +140,7 @@ def signals(header, rows, gains):
         w_hat[:, ACTUATED_INPUTS[i]] = x[:, 10 + j]
     u_cmd = np.zeros((n, 5))
     u_cmd[:, ACTUATED_INPUTS] = -x.dot(kal.K.T)
-    out = {'x_hat': x[:, :10], 'w_hat': w_hat, 'u': u, 'u_cmd': u_cmd, 'gyro_bias': x[:, -1]}
+    out = {'x_hat': x[:, :10], 'w_hat': w_hat, 'u': u, 'u_cmd': u_cmd, 'gyro_bias': x[:, kal.n_filter - 1]}
     if 'ref_d_r' in names:
         # driving: u = -K_a (x^ - x_ref) + u_ff = -K_a x^ + K_a's wheel columns d_ref + G r
         # (tipbot_fw.kalman, "Driving"); the reference as the log has it

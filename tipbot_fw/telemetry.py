@@ -6,7 +6,8 @@ then, for the Kalman core, the constants that make them SI:
 
     magic b'TBTM', u16 version, u8 layout (0: the detector core's row; KALMAN | the bits of
     the filter's disturbance states: the Kalman core's; | REFERENCE: a driven run's, the drive
-    reference's six integers after the wheel counts, their resolutions last), u8 polarity bits
+    reference's six integers after the wheel counts, their resolutions last; | INTEGRAL: the
+    law's integrators z_r, z_l after the gyro bias), u8 polarity bits
     (bit i: motor i's polarity is -1, motors r, l, th2, th3), u32 seq (datagrams so far),
     u32 tick, u32 overruns (so far), u32 send errors (so far), f64 t0 (the loop's clock at the
     first tick), then ROW_FIELDS[core] of the tick's row, 8 bytes each, as the row holds them
@@ -46,6 +47,9 @@ KALMAN = 0x80
 REFERENCE = 0x40
 REFERENCE_NAMES = tuple(name for name, _ in REFERENCE_COLUMNS)
 DISTURBANCES = ('w_r', 'w_l', 'w_th2', 'w_th3')
+# A law with integral action (tipbot_fw.kalman): its integrators' states after the gyro bias
+INTEGRAL = 0x20
+INTEGRATORS = ('z_r', 'z_l')
 # The row's columns each datagram carries, per core; 'xi_*' stands for the Kalman filter's
 # states in the row's order (10 robot states, its disturbance states, the gyro bias)
 ROW_FIELDS = {
@@ -128,8 +132,9 @@ class Layout(object):
             self.states = None
             self.body = struct.Struct('<{}d'.format(len(self.fields)))
             self.consts = None
-        elif code & KALMAN and not code & ~(KALMAN | REFERENCE | 15):
-            self.states = list(STATE_NAMES) + [w for i, w in enumerate(DISTURBANCES) if code >> i & 1] + ['gyro_bias']
+        elif code & KALMAN and not code & ~(KALMAN | REFERENCE | INTEGRAL | 15):
+            self.states = (list(STATE_NAMES) + [w for i, w in enumerate(DISTURBANCES) if code >> i & 1] + ['gyro_bias']
+                           + (list(INTEGRATORS) if code & INTEGRAL else []))
             n = len(self.states)
             self.fields = self.expand(ROW_FIELDS['kalman'], self.states)
             nr = len(REFERENCE_NAMES) if code & REFERENCE else 0
@@ -153,11 +158,14 @@ class Layout(object):
         driving: with the drive reference."""
         if rows.estimator == 'detector':
             return cls(0)
-        w = rows.state_names[10:-1]
+        names = list(rows.state_names)
+        z = INTEGRATORS if tuple(names[-len(INTEGRATORS):]) == INTEGRATORS else ()
+        w = names[10:len(names) - len(z) - 1]
         bad = [s for s in w if s not in DISTURBANCES]
         if bad:
             raise TelemetryError('telemetry: the Kalman filter\'s state {} has no place in a datagram'.format(bad[0]))
-        return cls(KALMAN | (REFERENCE if driving else 0) | sum(1 << DISTURBANCES.index(s) for s in w))
+        return cls(KALMAN | (REFERENCE if driving else 0) | (INTEGRAL if z else 0)
+                   | sum(1 << DISTURBANCES.index(s) for s in w))
 
 
 class TelemetrySender(object):

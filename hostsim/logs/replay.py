@@ -365,12 +365,14 @@ def replay_log(log_path, gains_path=None, logged_gains_path=None, tol=DEFAULT_TO
         r.other_gains_path = other
         r.other = replay_rows(header, rows, g, as_logged=False)
         r.other_gains = g
+        r.other_header = fw_replay.what_if_header(header, g)
         r.other_u_diff = {}
-        mine, theirs = fw_replay.signals(header, rows, r.logged_gains or g), fw_replay.signals(header, r.other, g)
+        mine = fw_replay.signals(header, rows, r.logged_gains or g)
+        theirs = fw_replay.signals(r.other_header, r.other, g)
         for name, j in zip(logfile.ACTUATED_NAMES, ACTUATED_INPUTS):
             d = theirs["u"][:, j] - mine["u"][:, j]
             r.other_u_diff[name] = (float(np.max(np.abs(d))), float(np.sqrt(np.mean(d * d))))
-        r.other_sat = _sat_fraction(r.other, r.names)
+        r.other_sat = _sat_fraction(r.other, [c["name"] for c in r.other_header["columns"]])
     return r
 
 
@@ -436,7 +438,7 @@ def plot(r, out_dir):
     series = []
     if r.other is not None:
         series.append(("replayed with %s" % os.path.basename(r.other_gains_path),
-                       fw_replay.signals(r.header, r.other, r.other_gains), dict(color="tab:blue", lw=1.0)))
+                       fw_replay.signals(r.other_header, r.other, r.other_gains), dict(color="tab:blue", lw=1.0)))
     series.append(("logged", fw_replay.signals(r.header, r.rows, gains), dict(color="k", lw=1.6)))
     if r.replayed is not None:
         series.append(("replayed (logged gains)", fw_replay.signals(r.header, r.replayed, gains),

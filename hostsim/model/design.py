@@ -117,6 +117,30 @@ def disturbance_gain(a, b, q, r, k, p, e_mat):
     return k_v @ np.linalg.solve(np.eye(n) - acl.T, p @ e_mat)
 
 
+def integrator_model(a, b, ts_s, rows=(0, 1)):
+    """(A_z, B_z) of the model with integrators of the states `rows` (the wheel positions),
+    z_{k+1} = z_k + ts x_rows,{k+1} = z_k + ts (A x_k + B u_k)[rows]: the integrator of the
+    position reached, as the firmware's integrates its estimate of this tick."""
+    n, nz = a.shape[0], len(rows)
+    az = np.zeros((n + nz, n + nz))
+    az[:n, :n] = a
+    az[n:, :n] = ts_s * a[list(rows)]
+    az[n:, n:] = np.eye(nz)
+    return az, np.vstack([b, ts_s * b[list(rows)]])
+
+
+def dlqi(a, b, q, r, actuated, ts_s, q_z, rows=(0, 1)):
+    """LQR with integral action on the states `rows`: (K (m x n), K_z (m x len(rows)), P, closed
+    loop eigenvalues) of u = -K x - K_z z on integrator_model, with the weight q_z on each z."""
+    az, bz = integrator_model(a, b, ts_s, rows)
+    n = a.shape[0]
+    qz = np.zeros(az.shape)
+    qz[:n, :n] = q
+    qz[n:, n:] = np.eye(len(rows)) * q_z
+    k, p, e = dlqr(az, bz, qz, r, actuated)
+    return k[:, :n], k[:, n:], p, e
+
+
 def finite_horizon_lqr(a, b, q, r, q_final, w_seq=None, e_mat=None, horizon=None):
     """Finite-horizon LQR with known disturbances (Section 5.2), solved backwards.
 

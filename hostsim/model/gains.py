@@ -15,6 +15,7 @@ exits 1 on a difference.
 """
 import argparse
 import dataclasses
+import itertools
 import json
 import os
 import re
@@ -72,6 +73,8 @@ NUMERIC_FIELDS = {
     "kalman.L": RTOL_WELL_CONDITIONED, "kalman.posterior_std": RTOL_WELL_CONDITIONED,
     "kalman.filter_eigenvalues_abs": RTOL_WELL_CONDITIONED,
     "kalman.K": RTOL_RICCATI, "kalman.law.M": RTOL_RICCATI,
+    # the integrators' limit: a share of u_max over K_z's rows
+    "kalman.integral.limit_m_s": RTOL_RICCATI,
     # the drive reference: K's velocity columns times the motion, and the model's inputs for it
     "kalman.reference.G": RTOL_RICCATI, "kalman.reference.U": RTOL_WELL_CONDITIONED,
     "kalman.reference.lean_rad": RTOL_WELL_CONDITIONED,
@@ -140,28 +143,55 @@ def robust_design(variant, params, ts_s, a, b, q, r, e_mat, noise=None):
     design.WHEEL_WEIGHT_LADDER (physical variant; the paper's weights for the paper variant)
     and input-noise scale of kalman.INPUT_NOISE_LADDER whose loop (plant, filter, law) has a
     modes all decay and oscillate with enough damping on every plant of kalman.UncertaintySet
-    (kalman.Margins.robust). When none does, the plain design (both factors 1). -> dict."""
+    (kalman.Margins.robust), the physical variant's law with integral action first (law_design),
+    without it if no step holds with it. When none does, the plain design (both factors 1, the
+    integrators if the variant has them). -> dict."""
     uncertainty = kalman.UncertaintySet(params, ts_s)
     t = state_scale_to_si(variant)
     ti = np.linalg.inv(t)
     base = kalman.NoiseSettings() if noise is None else noise
     ladder = (1.0,) if variant.paper_conventions else design.WHEEL_WEIGHT_LADDER
+    # our designs: with integral action if any step of the ladders holds, else without
+    integral_options = (False,) if variant.paper_conventions else (True, False)
     plain = None
-    for factor in ladder:
+    for integral, factor in itertools.product(integral_options, ladder):
         r_try = np.array(r, dtype=float)
         for j in (0, 1):
             r_try[j, j] *= factor
-        k, p, eig = design.dlqr(a, b, q, r_try, ACTUATED_INPUTS)
-        k_w = design.disturbance_gain(a, b, q, r_try, k, p, e_mat)
+        k, p, eig, k_w, k_z = law_design(a, b, q, r_try, e_mat, ts_s, integral)
         for scale in kalman.INPUT_NOISE_LADDER:
             ns = dataclasses.replace(base, input_noise_scale=scale)
-            kd = kalman.design_kalman(t @ a @ ti, t @ b, k @ ti, k_w, params["rw_m"], ts_s, ns)
+            kd = kalman.design_kalman(t @ a @ ti, t @ b, k @ ti, k_w, params["rw_m"], ts_s, ns,
+                                      integral=None if k_z is None else kalman.integral_law(
+                                          k_z / t[0, 0], params["u_max_v"]))
             found = dict(r_wheel_scale=factor, R=r_try, K=k, P=p, eig=eig, K_w=k_w, kalman=kd)
             if plain is None:
                 plain = found
             if uncertainty.holds(kd):
                 return dict(found, margins=uncertainty.margins(kd))
     return dict(plain, margins=uncertainty.margins(plain["kalman"]))
+
+
+# Integral action on the wheel positions (tipbot_fw.kalman, "Integral action"), in the designs
+# that are ours (the paper's variant keeps the paper's law): the integral's weight is the wheel
+# position's, spread over INTEGRAL_TIME_S (Bryson: a position error of 1 cm held that long costs
+# as much as 1 cm), so the integrators take out an offset in a few times that, slower than the
+# balancing and faster than the filter's slowest mode (the gyro bias's, ~7 s).
+INTEGRAL_TIME_S = 2.0
+
+
+def law_design(a, b, q, r, e_mat, ts_s, integral):
+    """(K, P, closed-loop eigenvalues, K_w, K_z or None) in the variant's units: the LQR, with
+    integral action on the wheel positions if `integral` (design.dlqi)."""
+    if not integral:
+        k, p, eig = design.dlqr(a, b, q, r, ACTUATED_INPUTS)
+        return k, p, eig, design.disturbance_gain(a, b, q, r, k, p, e_mat), None
+    rows = (0, 1)
+    k, k_z, p, eig = design.dlqi(a, b, q, r, ACTUATED_INPUTS, ts_s, q[0, 0] / INTEGRAL_TIME_S ** 2, rows)
+    az, bz = design.integrator_model(a, b, ts_s, rows)
+    e_z = design.integrator_model(a, e_mat, ts_s, rows)[1]
+    k_w = design.disturbance_gain(az, bz, None, r, np.hstack([k, k_z]), p, e_z)
+    return k, p, eig, k_w, k_z[list(ACTUATED_INPUTS)]
 
 
 def state_feedback_radii(variant, params, ts_s, k):
@@ -218,7 +248,8 @@ def to_document(g):
                                       "of another radius; stabilized: every mode decays (radius <= radius_max) and "
                                       "every one above damping_above_hz has a damping ratio >= damping_min"),
         "state_feedback_spectral_radius": {k: _num(v) for k, v in sorted(g.state_feedback_radii.items())},
-        "closed_loop_spectral_radius": _num(np.max(np.abs(g.closed_loop_eigenvalues))),
+        # of A - B K (the file's law without the Kalman block's integrators, as the firmware checks)
+        "closed_loop_spectral_radius": _num(kalman.spectral_radius(g.A - g.B @ g.K)),
         "detector_eigenvalues": [_num(z.real) for z in sorted(g.detector_eigenvalues, key=lambda z: z.real)],
         "controllability_rank": st["controllability_rank"],
         "observability_rank": st["observability_rank"],
@@ -268,10 +299,12 @@ def with_law(doc, k_file=None, k_w=None, note=""):
     si = gains_from_dict(dict(out, kalman=doc["kalman"]), "<with_law>", check_kalman=False)
     kal = out["kalman"]
     dist = [i for i, name in enumerate(("w_r", "w_l", "w_th2", "w_th3")) if name in kal["state_names"]]
-    k_a = kalman.law_gain(si.K, si.K_w, dist)
+    nz = sum(name in kalman.INTEGRAL_NAMES for name in kal["state_names"])
+    k_z = np.array(kal["K"])[:, len(kal["state_names"]) - nz:] if nz else None    # the integrators' own
+    k_a = kalman.law_gain(si.K, si.K_w, dist, k_z)
     kal["K"] = k_a.tolist()
     kal["law"] = dict(kal["law"], M=fold(*(np.array(kal[key]) for key in ("A", "B", "C", "L")), k_a,
-                                         kal["wheel_radius_m"]).tolist())
+                                         kal["wheel_radius_m"], nz).tolist())
     out["generator"] = doc["generator"] + note
     return out
 
@@ -325,7 +358,7 @@ def summary(g):
         "variant %s: ts %.4g s, state units %s" % (g.variant.name, g.ts_s, "/".join(sorted(set(g.variant.state_units)))),
         "  controllability rank %d, observability rank %d (of 10)" % (st["controllability_rank"], st["observability_rank"]),
         "  open-loop |eig|: %s" % ol,
-        "  closed-loop spectral radius of A - B K: %.6f" % np.max(np.abs(g.closed_loop_eigenvalues)),
+        "  closed-loop spectral radius of A - B K: %.6f" % kalman.spectral_radius(g.A - g.B @ g.K),
         "  detector eigenvalues (Abar - L1 C): %s" % ", ".join("%.4g" % z.real for z in g.detector_eigenvalues),
         "  Kalman filter: %d states (observability rank %d), slowest error mode |eig| %.5f"
         % (g.kalman.n, g.kalman.observability_rank, np.max(np.abs(g.kalman.filter_eigenvalues))),

@@ -30,6 +30,7 @@ rate of change, recorded with its reason in the gains file.
 """
 import dataclasses
 import math
+from typing import Optional
 
 import numpy as np
 import scipy.linalg
@@ -57,12 +58,22 @@ DEG = math.pi / 180.0
 ENCODER_COUNTS_PER_ROT = 360
 
 
-def state_names(dist_inputs=DISTURBANCE_INPUTS):
-    return X_NAMES + tuple(W_NAMES[i] for i in dist_inputs) + ("gyro_bias",)
+# The law's integrators of the wheel positions (tipbot_fw.kalman, "Integral action"), after the
+# filter's states where a design has them.
+INTEGRAL_NAMES = ("z_r", "z_l")
+INTEGRAL_UNIT = "m s"
+# The integrators' authority: at their limit they ask at most this share of u_max of a motor (the
+# rest for balancing and driving); a tilt estimate 0.02 rad off (a start a degree off upright)
+# needs about a third of it on the committed physical design.
+INTEGRAL_SHARE = 0.5
 
 
-def state_units(dist_inputs=DISTURBANCE_INPUTS):
-    return X_UNITS + ("V",) * len(dist_inputs) + ("rad/s",)
+def state_names(dist_inputs=DISTURBANCE_INPUTS, integral=False):
+    return X_NAMES + tuple(W_NAMES[i] for i in dist_inputs) + ("gyro_bias",) + (INTEGRAL_NAMES if integral else ())
+
+
+def state_units(dist_inputs=DISTURBANCE_INPUTS, integral=False):
+    return X_UNITS + ("V",) * len(dist_inputs) + ("rad/s",) + ((INTEGRAL_UNIT,) * len(INTEGRAL_NAMES) if integral else ())
 
 
 @dataclasses.dataclass(frozen=True)
@@ -199,11 +210,51 @@ def kalman_gain(aa, ca, qn, rn):
     return gain, p, (post + post.T) / 2
 
 
-def law_gain(k_si, k_w, dist_inputs=DISTURBANCE_INPUTS):
-    """K_a = [K_act, K_w_act (disturbed inputs' columns), 0]: u_act = -K_a x^ (4 x n)."""
+def law_gain(k_si, k_w, dist_inputs=DISTURBANCE_INPUTS, k_z=None):
+    """K_a = [K_act, K_w_act (disturbed inputs' columns), 0, K_z (the integrators', if any)]:
+    u_act = -K_a x^ (4 x n)."""
     act = ACTUATED_INPUTS
     kw_cols = [act[i] for i in dist_inputs]
-    return np.hstack([k_si[act, :], k_w[np.ix_(act, kw_cols)], np.zeros((N_U, 1))])
+    parts = [k_si[act, :], k_w[np.ix_(act, kw_cols)], np.zeros((N_U, 1))]
+    return np.hstack(parts + ([] if k_z is None else [k_z]))
+
+
+@dataclasses.dataclass(frozen=True)
+class IntegralLaw:
+    """The law's integral action: K_z (4 x 2, V per m s of z_r, z_l, SI) and the integrators'
+    limit (m s), from INTEGRAL_SHARE of u_max."""
+    K_z: np.ndarray
+    limit_m_s: float
+    u_max_v: float
+
+    def document(self):
+        return {"states": list(INTEGRAL_NAMES), "limit_m_s": self.limit_m_s, "share_of_u_max": INTEGRAL_SHARE,
+                "why": "z = integral of (d^ - d_ref) of each wheel (tipbot_fw.kalman, 'Integral action'); the "
+                       "LQR's integral weight is the wheel position's over hostsim.model.gains.INTEGRAL_TIME_S; "
+                       "each z is kept within limit_m_s, where both together ask %g of u_max = %g V of a motor "
+                       "at most (anti-windup)" % (INTEGRAL_SHARE, self.u_max_v)}
+
+
+def integral_law(k_z, u_max_v):
+    """IntegralLaw of the integrators' gains K_z (4 x 2, SI) for a motor limit u_max_v."""
+    k_z = np.asarray(k_z, dtype=float)
+    worst = float(np.max(np.abs(k_z).sum(axis=1)))
+    return IntegralLaw(K_z=k_z, limit_m_s=INTEGRAL_SHARE * u_max_v / worst, u_max_v=float(u_max_v))
+
+
+def with_integrators(aa, ba, ca, gain, ts_s):
+    """The filter's (A_a, B_a, C_a, L) with the law's integrators of the wheel positions after its
+    states (tipbot_fw.kalman, "Integral action"): z_k = z_{k-1} + ts d^_k, so A's and B's rows of
+    z are ts times d's (the prediction d-_k), L's ts times d's (the update to d^_k), C blind to z."""
+    n, nz = aa.shape[0], len(INTEGRAL_NAMES)
+    a = np.zeros((n + nz, n + nz))
+    a[:n, :n] = aa
+    a[n:, :n] = ts_s * aa[0:2]
+    a[n:, n:] = np.eye(nz)
+    b = np.vstack([ba, ts_s * ba[0:2]])
+    c = np.hstack([ca, np.zeros((ca.shape[0], nz))])
+    l_full = np.vstack([gain, ts_s * gain[0:2]])
+    return a, b, c, l_full
 
 
 @dataclasses.dataclass(frozen=True)
@@ -221,31 +272,39 @@ class KalmanDesign:
     P_post: np.ndarray     # and posterior (the estimate's)
     K: np.ndarray          # K_a (4 x n)
     observability_rank: int
+    integral: Optional[IntegralLaw] = None     # the law's integrators (after the filter's states)
 
     @property
     def n(self):
         return self.A.shape[0]
 
     @property
+    def n_filter(self):
+        """The filter's states (Q, P, P_post are of these; the integrators come after them)."""
+        return self.Q.shape[0]
+
+    @property
     def state_names(self):
-        return state_names(self.noise.disturbance_inputs)
+        return state_names(self.noise.disturbance_inputs, self.integral is not None)
 
     @property
     def state_units(self):
-        return state_units(self.noise.disturbance_inputs)
+        return state_units(self.noise.disturbance_inputs, self.integral is not None)
 
     @property
     def filter_eigenvalues(self):
-        """Of the estimation error x - x^ (its dynamics (I - L C) A)."""
-        return np.linalg.eigvals((np.eye(self.n) - self.L @ self.C) @ self.A)
+        """Of the estimation error x - x^ (its dynamics (I - L C) A, of the filter's states)."""
+        nf = self.n_filter
+        return np.linalg.eigvals((np.eye(nf) - self.L[:nf] @ self.C[:, :nf]) @ self.A[:nf, :nf])
 
     def folded_law(self):
         """The tick as one matrix (tipbot_fw.kalman): rows [u_k (4), xi_k (n)], columns
         [u_{k-1} (4, applied volts), xi_{k-1} (n), dphi_r, dphi_l, m_k (5, SI)]."""
-        return fw_kalman.fold(self.A, self.B, self.C, self.L, self.K, self.rw_m)
+        return fw_kalman.fold(self.A, self.B, self.C, self.L, self.K, self.rw_m, self.n - self.n_filter)
 
     def state_bounds(self):
-        return [STATE_BOUNDS[name.split("_")[0] if name.startswith("w_") else name] for name in self.state_names]
+        return [STATE_BOUNDS[name.split("_")[0] if name.startswith(("w_", "z_")) else name]
+                for name in self.state_names]
 
     def document(self):
         """The gains file's `kalman` block (SI; docs/architecture.md)."""
@@ -263,21 +322,24 @@ class KalmanDesign:
             "posterior_std": list(np.sqrt(np.diag(self.P_post))),
             "filter_eigenvalues_abs": sorted(float(abs(z)) for z in self.filter_eigenvalues),
             "observability_rank": self.observability_rank,
+            **({} if self.integral is None else {"integral": self.integral.document()}),
         }
 
 
 # Ranges of the carried state for the fixed-point law (tipbot_fw.fixedpoint): far beyond what
 # a standing robot reaches, so that no sum can overflow; their resolution is bound / 2^32.
 STATE_BOUNDS = {"d_r": 1.0, "d_l": 1.0, "th1": 4.0, "th2": 4.0, "th3": 4.0, "d_r_dot": 20.0, "d_l_dot": 20.0,
-                "th1_dot": 200.0, "th2_dot": 200.0, "th3_dot": 200.0, "w": 100.0, "gyro_bias": 1.0}
+                "th1_dot": 200.0, "th2_dot": 200.0, "th3_dot": 200.0, "w": 100.0, "gyro_bias": 1.0, "z": 4.0}
 STATE_BOUNDS_WHY = ("fixed-point ranges (resolution bound/2^32): xi_d = d - R_w phi is R_w th1 plus the "
                     "estimate's error (< 1 m); angles < 4 rad (the run stops at 0.6 / 1.2 rad); wheel speeds "
                     "< 20 m/s and rates < 200 rad/s (the motors reach 0.6 m/s and 30 rad/s, the gyro 7.7 rad/s); "
-                    "disturbances < 100 V (the battery is 9 V); gyro bias < 1 rad/s (57 deg/s)")
+                    "disturbances < 100 V (the battery is 9 V); gyro bias < 1 rad/s (57 deg/s); integrators "
+                    "< 4 m s (each tick keeps them within kalman.integral.limit_m_s, at most half of it)")
 
 
-def design_kalman(a_si, b_si, k_si, k_w, rw_m, ts_s, noise=None):
-    """The filter and the law for one model (SI) -> KalmanDesign."""
+def design_kalman(a_si, b_si, k_si, k_w, rw_m, ts_s, noise=None, integral=None):
+    """The filter and the law for one model (SI) -> KalmanDesign; integral: the law's
+    IntegralLaw (its integrators come after the filter's states), or None."""
     noise = NoiseSettings() if noise is None else noise
     aa, ba, ca = augmented_model(a_si, b_si, rw_m, noise.disturbance_inputs)
     rank = observability_rank(aa, ca)
@@ -287,9 +349,11 @@ def design_kalman(a_si, b_si, k_si, k_w, rw_m, ts_s, noise=None):
     qn = noise.process_covariance(ba[:N_X], ts_s)
     rn = noise.measurement_covariance()
     gain, p, post = kalman_gain(aa, ca, qn, rn)
+    k_a = law_gain(k_si, k_w, noise.disturbance_inputs, None if integral is None else integral.K_z)
+    if integral is not None:
+        aa, ba, ca, gain = with_integrators(aa, ba, ca, gain, ts_s)
     return KalmanDesign(ts_s=float(ts_s), rw_m=float(rw_m), noise=noise, A=aa, B=ba, C=ca, Q=qn, R=rn,
-                        L=gain, P=p, P_post=post, K=law_gain(k_si, k_w, noise.disturbance_inputs),
-                        observability_rank=rank)
+                        L=gain, P=p, P_post=post, K=k_a, observability_rank=rank, integral=integral)
 
 
 reference_step = fw_kalman.reference_step
