@@ -16,7 +16,7 @@ def write(tmp_path, text, name='robot.json'):
 def test_defaults_are_the_documented_robot():
     c = load_config()
     assert c['ports'] == {'right_wheel': 'outA', 'left_wheel': 'outB', 'joint2': 'outC',
-                          'joint3': 'outD', 'gyro': 'in2'}
+                          'joint3': 'outD', 'gyro': 'in2', 'ir_remote': None}
     assert c['drivers']['joint3'] == 'lego-ev3-m-motor'
     assert c['drivers']['gyro'] == 'lego-ev3-gyro'
     assert c['wheel_radius_m'] == 0.034

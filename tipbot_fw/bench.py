@@ -392,6 +392,7 @@ class FileDevices(object):
         dev._duty_fds, dev._cmd_fds, dev._last = (), (), [0, 0, 0, 0]
         dev._motor_ports = tuple(p for p, _ in motors)
         dev._gyro_port = gyro[0]
+        dev._ir, dev._ir_fd = None, -1
         dev.paths, dev.counts_per_rot = paths, (360, 360, 360, 360)
         dev._open(root)
         dev._set_up(stop_action)

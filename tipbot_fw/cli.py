@@ -266,7 +266,24 @@ def _log_path(args):
     return args.log
 
 
+def _ir_remote(args, gains, config, devices):
+    """The EV3 IR remote as the run's command source when the devices have one and no --course
+    or --remote is given (tipbot_fw.ir_remote), or None."""
+    ir = getattr(devices, 'ir_remote', None)
+    if ir is None or args.course_segments is not None or args.remote_receiver is not None:
+        return None
+    from tipbot_fw.drive import drive_problem
+    problem = drive_problem(gains, config)
+    if problem:
+        _say('IR remote on {}: cannot drive ({}): the robot balances where it is let go'.format(ir[0], problem))
+        return None
+    from tipbot_fw.ir_remote import IrRemote
+    _say('driving by the IR remote on {}, channel {} (red: left wheel, blue: right wheel)'.format(*ir))
+    return IrRemote(devices.read_ir_remote, gains.kalman.reference.limits, 'ir:{} channel {}'.format(*ir))
+
+
 def _run(args, config, gains, devices, log, hbt, guard, cues, telemetry):
+    args.remote_receiver = args.remote_receiver or _ir_remote(args, gains, config, devices)
     _say('running {} ({} variant, ts {} s), log {}{}'.format(
         gains.path, gains.model_variant, gains.ts_s, log.path,
         '' if hbt.supervised else ' (no supervisor: start with the launcher ev3/tipbot, or python3 -m '
@@ -301,7 +318,8 @@ def _gyro(devices, config):
 
 def _check(args, config, gains, devices):
     code = safety.EXIT_OK
-    print('devices: ok ({})'.format(', '.join('{} {}'.format(k, v) for k, v in sorted(config['ports'].items()))))
+    print('devices: ok ({})'.format(', '.join('{} {}'.format(k, v) for k, v in sorted(config['ports'].items())
+                                                 if v is not None)))
     try:
         enc, gyro = devices.read_raw()
         bv = devices.read_battery_v()

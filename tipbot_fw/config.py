@@ -4,6 +4,10 @@ Every field is validated; errors name the file and the dotted field path. Fields
 
   ports.{right_wheel,left_wheel,joint2,joint3}  motor port, outA..outD, all different
   ports.gyro                                   sensor port, in1..in4
+  ports.ir_remote                              the IR sensor's port (in1..in4), or null (the default):
+                                               run without --course or --remote drives by the EV3 IR
+                                               remote's buttons (tipbot_fw.ir_remote)
+  ir_remote_channel                            the remote's channel (its red slider), 1..4
   drivers.<device>                             expected driver name (checked by the device layer)
   estimator                                    kalman (the default: tipbot_fw.kalman) or detector (the
                                                paper's Section 6 robust detector: tipbot_fw.detector_core)
@@ -108,11 +112,14 @@ SPEC = {
     'ports.joint2': _MOTOR_PORT,
     'ports.joint3': _MOTOR_PORT,
     'ports.gyro': _one_of('in1', 'in2', 'in3', 'in4'),
+    'ports.ir_remote': _one_of(None, 'in1', 'in2', 'in3', 'in4'),
+    'ir_remote_channel': _one_of(1, 2, 3, 4),
     'drivers.right_wheel': fields.nonempty_string,
     'drivers.left_wheel': fields.nonempty_string,
     'drivers.joint2': fields.nonempty_string,
     'drivers.joint3': fields.nonempty_string,
     'drivers.gyro': fields.nonempty_string,
+    'drivers.ir_remote': fields.nonempty_string,
     'estimator': _one_of('kalman', 'detector'),
     'stop_action': _one_of('coast', 'brake'),
     'polarity.right_wheel': _SIGN,
@@ -183,6 +190,8 @@ def validate(config, source, error=ConfigError, prefix=''):
     for i, m in enumerate(MOTOR_ROLES):
         if ports.count(ports[i]) > 1:
             f.fail('ports.' + m, 'is {}, the port of another motor too'.format(ports[i]))
+    if config['ports']['ir_remote'] == config['ports']['gyro']:
+        f.fail('ports.ir_remote', 'is {}, the gyro\'s port too'.format(config['ports']['gyro']))
     lim = config['limits']
     if lim['warn_battery_v'] < lim['min_battery_v']:    # a warning the next start would refuse to run with
         f.fail('limits.warn_battery_v', 'is {!r} V, below limits.min_battery_v = {!r} V: the warning would come '

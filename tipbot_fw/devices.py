@@ -31,6 +31,10 @@ class Devices(object):
     def close(self):
         pass
 
+    # The EV3 IR remote, when the configuration has one (tipbot_fw.ir_remote): (port, channel),
+    # and read_ir_remote() -> its button code, an int (read outside the tick).
+    ir_remote = None
+
 
 class MemoryDevices(Devices):
     """In-memory devices for tests and the bench.
@@ -40,7 +44,8 @@ class MemoryDevices(Devices):
     a float or a callable returning one. Counters: raw_reads (read_raw calls), duty_writes
     (individual duty values written, i.e. changed ones), write_calls, battery_reads, stop_calls.
     If `trace` is a list, every operation appends its name to it. write_duties refuses (ValueError)
-    anything but 4 ints in [-100, 100], as a check on the firmware.
+    anything but 4 ints in [-100, 100], as a check on the firmware. An IR remote: set `ir_remote`
+    ((port, channel)) and `ir_code` (an int, or a callable returning one; it may raise).
     """
 
     def __init__(self, source=None, battery_v=8.0, counts_per_rot=(360, 360, 360, 360)):
@@ -57,6 +62,7 @@ class MemoryDevices(Devices):
         self.stop_calls = 0
         self.closed = False
         self.trace = None
+        self.ir_code = 0
 
     def read_raw(self):
         self.raw_reads += 1
@@ -93,6 +99,10 @@ class MemoryDevices(Devices):
         if self.trace is not None:
             self.trace.append('stop_all')
         self.duties = [0, 0, 0, 0]
+
+    def read_ir_remote(self):
+        c = self.ir_code
+        return c() if callable(c) else c
 
     def close(self):
         self.closed = True

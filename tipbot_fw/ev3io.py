@@ -30,7 +30,9 @@ After :meth:`Ev3Devices.stop_all` the motors stay stopped: write_duties only cha
 run-direct keeps its last duty after the program ends.
 
 ``config`` is the validated configuration (tipbot_fw.config); used: ``ports``, ``drivers``
-(each for right_wheel, left_wheel, joint2, joint3, gyro) and, if present, ``stop_action``.
+(each for right_wheel, left_wheel, joint2, joint3, gyro, and ir_remote if its port is set, with
+``ir_remote_channel``: mode IR-REMOTE set at start, its channel's value read outside the tick by
+read_ir_remote) and, if present, ``stop_action``.
 
 Errors: Ev3SetupError at start (every missing or wrong device, one line each); during the run
 Ev3ReadError / Ev3WriteError, which are OSErrors naming the port and attribute.
@@ -46,6 +48,8 @@ from tipbot_fw.console import say   # (not logging: its modules are memory the b
 
 GYRO_ROLE = 'gyro'
 GYRO_MODE = 'GYRO-G&A'
+IR_ROLE = 'ir_remote'
+IR_MODE = 'IR-REMOTE'
 STOP_ACTIONS = ('coast', 'brake')
 DEFAULT_STOP_ACTION = 'coast'
 DUTY_LIMIT = 100
@@ -109,6 +113,14 @@ def short_port(address):
     if address.startswith('ev3-ports:'):
         return address[len('ev3-ports:'):]
     return address
+
+
+def ir_spec(config):
+    """(port, driver, channel) of the configured IR remote's sensor, or None."""
+    port = (config.get('ports') or {}).get(IR_ROLE)
+    if port is None:
+        return None
+    return short_port(port), config['drivers'][IR_ROLE], config['ir_remote_channel']
 
 
 def device_spec(config):
@@ -201,16 +213,19 @@ def discover(config, sysfs_root='/sys/class'):
             path = _check(found_motors, port, driver, 'motor', role, problems, fields)
             if path:
                 paths[port] = path
-        gyro_port, gyro_driver = gyro
-        path = _check(found_sensors, gyro_port, gyro_driver, 'sensor', GYRO_ROLE, problems, fields)
-        if path:
-            paths[gyro_port] = path
-            dev = ev3dev2.Device('lego-sensor', os.path.basename(path), name_exact=True)
-            _, modes = dev.get_attr_set(None, 'modes')
-            if GYRO_MODE not in modes:
-                problems.append('port {}: sensor has no {} mode (modes: {})'.format(
-                    gyro_port, GYRO_MODE, ' '.join(modes)))
-                fields.append('drivers.' + GYRO_ROLE)
+        sensors = [(GYRO_ROLE, gyro[0], gyro[1], GYRO_MODE)]
+        ir = ir_spec(config)
+        if ir is not None:
+            sensors.append((IR_ROLE, ir[0], ir[1], IR_MODE))
+        for role, port, driver, mode in sensors:
+            path = _check(found_sensors, port, driver, 'sensor', role, problems, fields)
+            if path:
+                paths[port] = path
+                dev = ev3dev2.Device('lego-sensor', os.path.basename(path), name_exact=True)
+                _, modes = dev.get_attr_set(None, 'modes')
+                if mode not in modes:
+                    problems.append('port {}: sensor has no {} mode (modes: {})'.format(port, mode, ' '.join(modes)))
+                    fields.append('drivers.' + role)
         if problems:
             raise Ev3SetupError(problems, fields)
         return paths, tuple(count_per_rot(ev3dev2, paths[port]) for port, _ in motors)
@@ -340,6 +355,8 @@ class Ev3Devices(SysfsDevices):
         motors, gyro, stop_action = device_spec(config)
         self._motor_ports = tuple(port for port, _ in motors)
         self._gyro_port = gyro[0]
+        self._ir = ir_spec(config)
+        self._ir_fd = -1
         self.paths, self.counts_per_rot = discover(config, sysfs_root)
         try:
             self._open(sysfs_root)
@@ -358,6 +375,8 @@ class Ev3Devices(SysfsDevices):
         duty = tuple(open_attr(p, 'duty_cycle_sp', os.O_WRONLY) for p in ports)
         cmd = tuple(open_attr(p, 'command', os.O_WRONLY) for p in ports)
         gyro = open_attr(self._gyro_port, 'bin_data', os.O_RDONLY)
+        if self._ir is not None:    # the channel's button code: value0 for channel 1, ...
+            self._ir_fd = open_attr(self._ir[0], 'value{}'.format(self._ir[2] - 1), os.O_RDONLY)
         self._open_battery(sysfs_root)
         self._opened()
         self._read_fds = pos + (gyro,)
@@ -372,6 +391,8 @@ class Ev3Devices(SysfsDevices):
             self._write_once(port, self.paths[port], 'polarity', 'normal')
             self._setup_write(port, 'command', self._cmd_fds[i], 'run-direct')
         self._write_once(self._gyro_port, self.paths[self._gyro_port], 'mode', GYRO_MODE)
+        if self._ir is not None:
+            self._write_once(self._ir[0], self.paths[self._ir[0]], 'mode', IR_MODE)
 
     # ------------------------------------------------------------------ the tick
     def read_raw(self):
@@ -430,6 +451,18 @@ class Ev3Devices(SysfsDevices):
             raise Ev3WriteError(self._motor_ports[where], 'duty_cycle_sp', 'writing', e)
 
     # ------------------------------------------------------------------ outside the tick
+    @property
+    def ir_remote(self):
+        """(port, channel) of the IR remote the configuration names, or None."""
+        return None if self._ir is None else (self._ir[0], self._ir[2])
+
+    def read_ir_remote(self):
+        """The IR remote channel's button code (tipbot_fw.ir_remote), one read; Ev3ReadError."""
+        try:
+            return int(self._pread(self._ir_fd, _READ_BYTES, 0))
+        except (OSError, ValueError) as e:
+            raise Ev3ReadError(self._ir[0], 'value{}'.format(self._ir[2] - 1), 'reading', e)
+
     def stop_all(self):
         """Duty 0, then command ``stop`` (applies stop_action), on every motor. Never raises; a
         failure on one motor or attribute does not keep the rest from stopping. Idempotent.

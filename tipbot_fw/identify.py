@@ -48,7 +48,7 @@ import numpy as np
 import tipbot_fw
 from tipbot_fw import ev3io, logfile
 from tipbot_fw.clock import MonotonicClock
-from tipbot_fw.config import ConfigError, load_config
+from tipbot_fw.config import MOTOR_ROLES, ConfigError, load_config
 from tipbot_fw.console import say
 from tipbot_fw.plausibility import check_battery
 from tipbot_fw.safety import (EXIT_DEVICES, EXIT_ERROR, EXIT_INTERRUPT, EXIT_INVALID, EXIT_OK,
@@ -424,8 +424,8 @@ def add_arguments(sp):
 
 
 def _role_of(config, port):
-    for role, p in sorted(config['ports'].items()):
-        if ev3io.short_port(p) == port and role != 'gyro':
+    for role in MOTOR_ROLES:
+        if ev3io.short_port(config['ports'][role]) == port:
             return role
     return None
 

@@ -40,6 +40,7 @@ from scipy.linalg import solve_discrete_lyapunov
 from scipy.optimize import minimize
 
 from hostsim.errors import DesignError
+from hostsim.model import design
 from hostsim.paths import CACHE_DIR as _CACHE, GAINS_DIR, REPO_ROOT
 
 CACHE_DIR = os.path.join(_CACHE, "pd")
@@ -123,8 +124,11 @@ def pd_for_gains(path):
     doc = json.loads(data.decode("utf-8"))
     a, b, q, r, k_lqr = (np.array(doc[n], dtype=float) for n in ("A", "B", "Q", "R", "K"))
     k, named, cost = design_pd(a, b, q, r, k_lqr)
+    # the reference is the LQR of this very cost: the file's own law where it is that (the paper
+    # variant), not a law with integral action, which minimizes a cost of its integrators too
+    k_opt = design.dlqr(a, b, q, r, doc["actuated_inputs"])[0]
     out = dict(K=k.tolist(), gains={n: float(v) for n, v in named.items()}, cost=float(cost),
-               lqr_cost=lq_cost(a, b, q, r, k_lqr), spectral_radius=spectral_radius(a, b, k),
+               lqr_cost=lq_cost(a, b, q, r, k_opt), spectral_radius=spectral_radius(a, b, k),
                units=doc["state_units"], gains_file=os.path.relpath(path, REPO_ROOT))
     os.makedirs(CACHE_DIR, exist_ok=True)
     tmp = cache + ".tmp%d" % os.getpid()

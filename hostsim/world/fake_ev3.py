@@ -64,6 +64,8 @@ from tipbot_fw import feedback
 
 #: Size of every fake-owned text record (value + "\n" + space padding) and of bin_data.
 RECORD_BYTES = 32
+#: The IR sensor's modes (ev3_uart_sensor_defs.c; ../shared/ev3-hardware.md).
+IR_MODE_NAMES = ('IR-PROX', 'IR-SEEK', 'IR-REMOTE', 'IR-REM-A', 'IR-S-ALT', 'IR-CAL')
 #: lego-sensor bin_data is a 32-byte binary attribute (LEGO_SENSOR_RAW_DATA_SIZE).
 BIN_DATA_BYTES = 32
 
@@ -300,7 +302,7 @@ class FakeEV3(object):
 
     def __init__(self, root_dir=None, battery_v=8.0, motors=None, gyro_port='in2',
                  gyro_driver='lego-ev3-gyro', gyro_mode_switch_s=GYRO_MODE_SWITCH_S, gyro_mode_write_s=0.0,
-                 gyro_mode_timeout=False):
+                 gyro_mode_timeout=False, ir_port=None):
         self._own_root = root_dir is None
         if root_dir is None:
             root_dir = tempfile.mkdtemp(prefix='fake-ev3-')
@@ -334,6 +336,9 @@ class FakeEV3(object):
         if gyro_port is not None:
             path = os.path.join(self.sysfs_root, 'lego-sensor', 'sensor0')
             self._gyro = self._make_gyro(gyro_port, gyro_driver, path)
+        self._ir = None
+        if ir_port is not None:
+            self._ir = self._make_ir(ir_port, os.path.join(self.sysfs_root, 'lego-sensor', 'sensor1'))
         self._make_battery(battery_v)
         self._make_board_info()
         self._make_lights()
@@ -411,6 +416,28 @@ class FakeEV3(object):
             add(g, 'value%d' % i, '0')
         self._publish_gyro(g)
         return g
+
+    def _make_ir(self, port, path):
+        """The IR sensor (lego-ev3-ir): its modes, the mode a client writes, four values (in
+        IR-REMOTE the four channels' button codes, which set_ir_buttons sets)."""
+        os.makedirs(path)
+        d = _Device(port, 'lego-ev3-ir', path)
+        add = self._add
+        add(d, 'address', 'ev3-ports:' + port)
+        add(d, 'driver_name', 'lego-ev3-ir')
+        add(d, 'modes', ' '.join(IR_MODE_NAMES))
+        add(d, 'mode', IR_MODE_NAMES[0], _RW)
+        for i in range(4):
+            add(d, 'value%d' % i, '0')
+        return d
+
+    def set_ir_buttons(self, channel, code):
+        """The button code (0-11) the IR sensor reads on remote channel 1-4."""
+        self._put(self._ir.attrs['value%d' % (channel - 1)], str(int(code)))
+
+    def ir_mode(self):
+        """The IR sensor's mode as a client last wrote it."""
+        return os.pread(self._ir.attrs['mode'].fd, 4096, 0).decode('ascii').split()[0]
 
     def _make_battery(self, battery_v):
         self._battery = _Device('battery', 'lego-ev3-battery',
