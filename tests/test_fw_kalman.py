@@ -10,7 +10,10 @@ import fw_support as S
 from conftest import PAPER_GAINS, PHYSICAL_GAINS
 from tipbot_fw import fixedpoint as fx
 from tipbot_fw import kalman, logfile, plausibility
+from tipbot_fw import replay as fw_replay
 from tipbot_fw.clock import VirtualClock
+from tipbot_fw.cues import OwnerCues
+from tipbot_fw.session import run_session
 from tipbot_fw.devices import MemoryDevices
 from tipbot_fw.gains import ACTUATED_INPUTS, load_gains
 from tipbot_fw.kalman import KalmanCore, fold, reference_step
@@ -150,10 +153,12 @@ def test_the_fixed_point_core_follows_the_readable_filter_step_by_step():
         worst_u = max(worst_u, np.max(np.abs(np.array(out[k][5]) - u * 100 / 8.0)))
     # states within 1e-7 of their ranges (the resolution is 2^-32 of them), the integrators,
     # which add up every tick's rounding, within half a resolution step a tick; commands within
-    # 1e-3 of a duty step (0.08 mV at 8 V) before their rounding
+    # 1e-3 of a duty step (0.08 mV at 8 V) before their rounding, plus what the integrators'
+    # rounding moves them by (K_z times it: a few hundredths of a duty step, 2 mV)
     assert worst_x < 1e-7
     assert 0 < worst_z < 0.5 * len(out) * 2.0 ** -32
-    assert worst_u < 1e-3
+    z_volts = np.abs(kal.K[:, nf:]).sum(axis=1).max() * worst_z * kal.state_bounds[nf]
+    assert worst_u < 1e-3 + z_volts * 100 / 8.0 and z_volts < 0.005
     assert max(abs(np.array(o[2])).max() for o in out) > 3      # the law did work
 
 
@@ -301,22 +306,39 @@ def test_the_integrators_take_out_an_offset_the_filter_cannot_see():
     assert ends['integral'] < 0.2 * ends['proportional'] and ends['integral'] < 0.005
 
 
-def test_the_integrators_stay_within_their_authority_when_the_wheels_are_held():
-    # the wheels held 10 cm ahead of their zero for 30 s (a hand, a wall): without a limit the
-    # integrators would reach 3 m s; they stop at kalman.integral.limit_m_s
+def test_the_integrators_stay_within_their_authority_when_the_wheels_are_held(tmp_path):
+    # the wheels pushed 30 cm ahead of their zero and held there (a hand, a wall): without a limit
+    # the integrators would reach 2 m s in 8 s; the loop keeps them within kalman.integral.limit_m_s
+    # once a second (outside the tick), the log flags it and the replay does the same to the bit
     gains = committed('physical')
-    core = KalmanCore(gains, S.fw_config())
-    core.set_gyro_bias(0.0)
-    core.set_battery(8.0)
-    buf = bytearray(core.rows.row_bytes)
-    counts = int(round(0.10 / abs(core.wheel_m[0])))
-    core.start((0, 0, 0, 0), (0, 0), buf, 0)
-    nf, top = core.nf, core.guard
-    seen = []
-    for _ in range(int(30.0 / gains.ts_s)):
-        core.step((counts * core.polarity[0], counts * core.polarity[1], 0, 0), (0, 0), buf, 0)
-        seen.append([int(core.v[kalman.N_U + nf + i]) for i in (0, 1)])
-    seen = np.array(seen)
-    assert np.abs(seen).max() == top                        # reached the limit and held there
-    assert top * float(core.state_lsb[nf]) == pytest.approx(gains.kalman.integral_limit_m_s, rel=1e-6)
-    assert np.all(np.abs(seen[-100:]) == top)
+    hold_m = 0.3
+    held = int(round(hold_m / (gains.kalman.wheel_radius_m * 2 * math.pi / 360)))
+    reads = [0]
+
+    def source():
+        reads[0] += 1
+        c = min(held, max(0, reads[0] - 50))   # still for the calibration, then pushed ahead
+        return (c, c, 0, 0), (0, 0)
+    dev = MemoryDevices(source=source)
+    log = str(tmp_path / 'held.log')
+    code, header = run_session(dev, gains, S.fw_config(), VirtualClock(), log_path=log, duration_s=8.0,
+                               say=lambda m: None, cues=OwnerCues(streams=()))
+    assert code == 0
+    head, rows = logfile.read_log(log)
+    kal = gains.kalman
+    names = [c['name'] for c in head['columns']]
+    z = rows[:, names.index('xi_z_r')]
+    wound = (rows[:, names.index('flags')].astype(np.int64) & logfile.WOUND_DOWN) != 0
+    limit = kal.integral_limit_m_s
+    assert wound.sum() >= 3                                  # wound down, once a second
+    assert np.all(np.abs(z[np.nonzero(wound)[0] + 1]) <= limit + 1.01 * hold_m * gains.ts_s)   # from there on
+    assert np.abs(z).max() < limit + 1.01 * hold_m * 1.0    # one second of growth at most beyond it
+    assert np.abs(z).max() > limit                           # it did wind up: the limit acted
+    replayed = fw_replay.replay(head, rows, gains)
+    assert np.array_equal(replayed[:, 2:], rows[:, 2:])      # the replay winds down where the log says
+    saved = KalmanCore.wind_down
+    try:
+        KalmanCore.wind_down = lambda self: False
+        assert not np.array_equal(fw_replay.replay(head, rows, gains)[:, 2:], rows[:, 2:])   # and it mattered
+    finally:
+        KalmanCore.wind_down = saved

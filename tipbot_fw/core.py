@@ -15,7 +15,8 @@ for the first tick and step(...) for every later one, which write the tick's mem
 but its two time columns) into buf at byte offset `offset` and return (duties, stop);
 skip(periods) after a tick the loop was late from, with the whole periods it missed (the
 Kalman core predicts through them with the duties held; a replay calls it from the log's
-flags); restore(file_row, encoder_offsets) to continue from a logged row; `rows`, the row layout
+flags); wind_down() once a second outside the ticks (the Kalman core keeps its law's integrators
+within their limit; True if it changed them, which the log's flags record for the replay); restore(file_row, encoder_offsets) to continue from a logged row; `rows`, the row layout
 (tipbot_fw.logfile: DetectorRows or KalmanRows), which row_layout() gives before the core is
 made (the log's header is written before the calibration); angles(mem_row) for a stop message;
 header() for the log; limits; battery_v; max_count_step, the largest change of a wheel's count

@@ -187,6 +187,10 @@ class DetectorCore(object):
         """Periods the loop missed: the paper's core, kept as published, resumes from its last
         estimate (the Kalman core predicts through them: tipbot_fw.kalman)."""
 
+    def wind_down(self):
+        """The paper's law has no integrators (tipbot_fw.kalman's may have): nothing to keep."""
+        return False
+
     def restore(self, row, encoder_offsets):
         """State as right after the tick that produced the (file layout) log row `row`."""
         r = [float(x) for x in row]

@@ -200,8 +200,8 @@ MATRIX_BOUNDS = {
     'kalman.L': (1e3, 'state change per unit of innovation in one period (the committed filters: below 70)'),
     'kalman.K': (1e4, 'as K'),
     'kalman.law.M': (1e5, 'the folded law: K and the filter times the wheel radius or 1/R_w (committed: below 500)'),
-    'kalman.law.state_bounds': (1e4, 'the fixed-point range of a state (m, rad, m/s, rad/s, V): larger leaves '
-                                'no resolution'),
+    'kalman.law.state_bounds': (1e5, 'the fixed-point range of a state (m, rad, m/s, rad/s, V; the integrators\' '
+                                'm s: 2^15): larger leaves no resolution'),
 }
 # Structure checks: (field, function(g) -> problem or None). The Section 6 detector's disturbance
 # estimate inverts the input disturbance's effect (w^ = G_w C E w), and its L2 is E G_w.

@@ -62,9 +62,12 @@ position error, z_k = z_{k-1} + ts (d^_k - d_ref_k) (m s), and the law feeds the
 last columns): any constant offset, of the estimate or of the floor, is taken out. They are
 the last rows of the same product (A's row of z is ts times d's, L's ts times d's, so that z
 sees d^_k of this very tick); they are not estimated (no measurement, no filter gain of their
-own), their wheel-angle columns are ts R_w, not zero, and skip() holds them. Each tick keeps
-them within +-kalman.integral.limit_m_s, the authority the gains give them (a share of u_max):
-a hand or a wall holding the robot cannot wind them up.
+own), their wheel-angle columns are ts R_w, not zero, and skip() holds them. The loop keeps
+them within +-kalman.integral.limit_m_s, the authority the gains give them (a share of u_max),
+once a second outside the tick (wind_down(), flagged in the log for the replay): a hand or a wall
+holding the robot cannot wind them up. Their fixed-point range (2^15 m s) is what they can
+reach in that second while the position error stays below 16 km (a wheel's count itself is
+bounded at 5 km): the tick pays no check.
 """
 import itertools
 import math
@@ -117,10 +120,9 @@ MEASUREMENTS = ('phi_r', 'phi_l', 'th2', 'th3', 'gyro')
 
 _IN = struct.Struct('<7q')
 REF = struct.Struct('<6q')
-# duty_r..duty_3, xi_th1 and the two guarded states of step() (the integrators', else the joints')
-_HEAD = '<4q16xq{}x2q'
+_IN_REF = struct.Struct('<8q{}s'.format(REF.size))    # the inputs, the constant 1, a reference row
+_HEAD = struct.Struct('<7q')          # duty_r..duty_3, xi_d_r, xi_d_l, xi_th1
 _DUTIES = struct.Struct('<4q')
-_PAIR = struct.Struct('<2q')
 _ROW_FLOATS = struct.Struct('<3d')    # battery_v, flags, gyro_angle
 # A live plan's rows a stall's skip leaves: more than the ticks the loop may go without its side
 # task, which makes them (tipbot_fw.loop.SIDE_WAIT_S: 10 ticks at 5 ms), so a tick always has one;
@@ -300,14 +302,8 @@ class KalmanCore(object):
         self.n_v = one + 1 + N_REF
         self.v_bounds = v_bounds[:one] + [1.0] + v_bounds[one:]
         self.shifts = np.array(self.shift_list, dtype=np.int64)
-        # the guarded pair (step()): the integrators, kept within the authority the gains give them
-        # (anti-windup: a hand or a wall holding the robot cannot wind them up), or without
-        # integrators the joints' xi (after xi_th1), within the fixed-point range (as skip() keeps it)
-        guarded = nf if n > nf else 3
-        self._head = struct.Struct(_HEAD.format(8 * (guarded - 3))).unpack_from
-        top = 2 ** fx.STATE_BITS
-        self.guard = (min(top, fx.round_half_up(kal.integral_limit_m_s, self.q[nf])) if n > nf else top)
-        self._guard_off = 8 * (N_U + guarded)
+        # the integrators' limit (wind_down), in their integer units
+        self.z_limit = fx.round_half_up(kal.integral_limit_m_s, self.q[nf]) if n > nf else None
         self.v_bytes = bytearray(8 * self.n_v)
         self.v = np.frombuffer(self.v_bytes, dtype='<i8')
         self.v[one] = 1
@@ -321,7 +317,7 @@ class KalmanCore(object):
         self._in_off = 8 * (N_U + n)
         self._ref_off = 8 * (one + 1)
         self._row_ints = 8 * self.n_v
-        self._ref_slice = slice(self._ref_off, self._row_ints)
+        self._row_end = 40 + self._row_ints
         self.rows = layout or self.row_layout(gains, config)
         assert self.rows.q == self.q and self.rows.has_reference
         self.rows.ref_lsb = self.ref_lsb
@@ -451,7 +447,8 @@ class KalmanCore(object):
         self.v[N_U:N_U + self.n] = z
         _IN.pack_into(self.v_bytes, self._in_off, 0, 0, 0, 0, 0, 0, gyro[1])
         self._check_range()
-        return self._finish(duties, z[2], gyro[0], buf, offset, True)
+        _DUTIES.pack_into(self.v_bytes, 0, *duties)
+        return self._finish(gyro[0], buf, offset)
 
     def step(self, enc, gyro, buf, offset):
         """Every later tick: the module docstring's product, in integers."""
@@ -466,25 +463,22 @@ class KalmanCore(object):
         d0 = r0 - p0        # within +-MAX_COUNT_STEP: the loop's plausibility check
         d1 = r1 - p1
         j2lo, j2hi, j3lo, j3hi = self.joint_bounds
-        _IN.pack_into(self.v_bytes, self._in_off, d0, d1, r0, r1, r2, r3, gyro[1])
         next_row = self.next_row
-        if next_row is not None:    # driving: this tick's reference (set_plan, set_live)
-            self.v_bytes[self._ref_slice] = next_row()
+        if next_row is not None:    # driving: with this tick's reference (set_plan, set_live), in one call
+            _IN_REF.pack_into(self.v_bytes, self._in_off, d0, d1, r0, r1, r2, r3, gyro[1], 1, next_row())
+        else:
+            _IN.pack_into(self.v_bytes, self._in_off, d0, d1, r0, r1, r2, r3, gyro[1])
         if not (j2lo <= r2 <= j2hi and j3lo <= r3 <= j3hi):
             # stop before the product: beyond the limits the fixed-point range is not assured
             return self._row(JOINT_LIMIT, gyro[0], buf, offset)
         self.dot(self.v_in, self.acc)
         self.rshift(self.acc, self.shifts, self.v_head)
-        q0, q1, q2, q3, th1, g0, g1 = self._head(self.v_bytes, 0)
-        top = self.guard
-        if not (-top <= g0 <= top and -top <= g1 <= top):
-            # the duties of this tick saw the pair as it came; the next product sees it kept
-            _PAIR.pack_into(self.v_bytes, self._guard_off, max(-top, min(top, g0)), max(-top, min(top, g1)))
-        return self._finish((q0, q1, q2, q3), th1, gyro[0], buf, offset)
+        return self._finish(gyro[0], buf, offset)
 
-    def _finish(self, q, th1, gyro_angle, buf, offset, pack=False):
+    def _finish(self, gyro_angle, buf, offset):
+        """The tick's duties (v's first four, rounded) saturated, the fall check, the row."""
         dlim = self.dlim
-        q0, q1, q2, q3 = q
+        q0, q1, q2, q3, _, _, th1 = _HEAD.unpack_from(self.v_bytes, 0)
         bits = 0
         if q0 > dlim:
             q0, bits = dlim, 1
@@ -502,17 +496,19 @@ class KalmanCore(object):
             q3, bits = dlim, bits | 8
         elif q3 < -dlim:
             q3, bits = -dlim, bits | 8
-        if bits or pack:
+        if bits:
             _DUTIES.pack_into(self.v_bytes, 0, q0, q1, q2, q3)
         lo, hi = self.th1_bounds
         if not lo <= th1 <= hi:
             bits |= FALL
-        self._row(bits, gyro_angle, buf, offset)
+        # the row (as _row writes it; written out here: a call costs the tick ~600 instructions)
+        _ROW_FLOATS.pack_into(buf, offset + 16, self.battery_v, bits, gyro_angle)
+        buf[offset + 40:offset + self._row_end] = self.v_bytes[0:self._row_ints]
         return [q0, q1, q2, q3], bits & STOP_FLAGS
 
     def _row(self, flags, gyro_angle, buf, offset):
         _ROW_FLOATS.pack_into(buf, offset + 16, self.battery_v, flags, gyro_angle)
-        buf[offset + 40:offset + 40 + self._row_ints] = self.v_bytes[0:self._row_ints]
+        buf[offset + 40:offset + self._row_end] = self.v_bytes[0:self._row_ints]
         return [0, 0, 0, 0], flags & STOP_FLAGS
 
     def skip(self, periods):
@@ -537,6 +533,22 @@ class KalmanCore(object):
         # within the fixed-point range the product is built for (a robot that far off has
         # fallen: the next tick's fall check stops it)
         v[N_U:N_U + n] = [max(-top, min(top, fx.round_half_up(x[i], self.q[i]))) for i in range(n)]
+
+    def wind_down(self):
+        """Keep the integrators within +-kalman.integral.limit_m_s (anti-windup; module docstring,
+        "Integral action"). Outside the tick: the loop once a second, the replay after the rows
+        the log flags (logfile.WOUND_DOWN). -> True if it changed them."""
+        top = self.z_limit
+        if top is None:
+            return False
+        v = self.v
+        changed = False
+        for i in range(N_U + self.nf, N_U + self.n):
+            z = int(v[i])
+            if not -top <= z <= top:
+                v[i] = top if z > 0 else -top
+                changed = True
+        return changed
 
     # -- inspection, replay
     def estimate(self):

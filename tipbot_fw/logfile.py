@@ -94,6 +94,9 @@ SATURATION_BITS = 1 | 2 | 4 | 8
 # the core predicted through (its skip(); the replay does the same)
 SKIP_SHIFT = 7
 SKIP_MAX = (1 << 20) - 1
+# After this tick the loop kept the law's integrators within their limit (KalmanCore.wind_down),
+# which the replay does at the same place; above the skipped periods' bits
+WOUND_DOWN = 1 << 27
 
 
 def to_file_layout(mem_rows, polarity, t0=0.0):

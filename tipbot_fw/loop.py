@@ -63,6 +63,7 @@ SIDE_WAIT_S = 0.05
 
 OVERRUN = logfile.FLAG_BITS['overrun']
 SKIP_SHIFT, SKIP_MAX = logfile.SKIP_SHIFT, logfile.SKIP_MAX
+WOUND_DOWN = logfile.WOUND_DOWN
 FALL = logfile.FLAG_BITS['fall']
 
 
@@ -206,7 +207,7 @@ class ControlLoop(object):
         chunk = log.chunk_rows
         next_flush = chunk
         urgent = log.capacity - chunk
-        next_battery = battery_every
+        next_battery = next_wind = battery_every
         side = self.side
         side_due = 1
         if side is None:
@@ -282,6 +283,10 @@ class ControlLoop(object):
                 else:
                     consecutive = 0
                 if k >= due:        # work between ticks: one comparison a tick until some is due
+                    if k >= next_wind:      # the integrators' anti-windup, once a second, before the
+                        if core.wind_down():        # row it flags can go to the file
+                            log.mem[(k - 1) % cap, flags_col] += WOUND_DOWN
+                        next_wind = k - k % battery_every + battery_every
                     if k >= next_flush and (release - now() > min_slack or k - log.flushed >= urgent):
                         flush(k)                        # whole chunks: the file's unit
                         next_flush = k - k % chunk + chunk
@@ -305,6 +310,8 @@ class ControlLoop(object):
                     due = next_flush if next_flush < next_battery else next_battery
                     if side_due < due:
                         due = side_due
+                    if next_wind < due:
+                        due = next_wind
                 sleep_until(release)   # returns at once when late
         finally:
             log.count = stats.ticks = k

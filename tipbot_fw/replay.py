@@ -45,7 +45,8 @@ def replay(header, rows, gains, check_gains=True):
     layout = core.rows
     logged = _logged_layout(header, layout)
     one = logfile.LogBuffer(1, layout)
-    loop_bits = logfile.FLAG_BITS['overrun'] | (logfile.SKIP_MAX << logfile.SKIP_SHIFT)
+    loop_bits = logfile.FLAG_BITS['overrun'] | (logfile.SKIP_MAX << logfile.SKIP_SHIFT) | logfile.WOUND_DOWN
+    skip_bits = logfile.SKIP_MAX << logfile.SKIP_SHIFT
     flags = layout.col('flags')
     readings = _reader(logged)
     starts = dict(logfile.segment_rows(header, len(rows)))
@@ -74,14 +75,22 @@ def replay(header, rows, gains, check_gains=True):
             core.start(enc, gyro, one.data, 0)
         else:
             core.restore(rows[i], header['encoder_offsets'])
-            core.skip(loops >> logfile.SKIP_SHIFT)
+            _between_ticks(core, loops, skip_bits)
             continue
         out[i, 2:] = layout.to_file(one.mem)[0, 2:width]
         # the overrun flag and the periods skipped after the tick are the loop's, not the core's;
         # the core predicted through those periods before the next tick, as on the robot
         out[i, flags] = int(out[i, flags]) | loops
-        core.skip(loops >> logfile.SKIP_SHIFT)
+        _between_ticks(core, loops, skip_bits)
     return out
+
+
+def _between_ticks(core, loops, skip_bits):
+    """What the loop did to the core after a tick, as its flags say: the periods it skipped
+    (predicted through), then the integrators kept within their limit (tipbot_fw.loop)."""
+    core.skip((loops & skip_bits) >> logfile.SKIP_SHIFT)
+    if loops & logfile.WOUND_DOWN:
+        core.wind_down()
 
 
 def _logged_layout(header, layout):

@@ -329,12 +329,13 @@ class KalmanDesign:
 # Ranges of the carried state for the fixed-point law (tipbot_fw.fixedpoint): far beyond what
 # a standing robot reaches, so that no sum can overflow; their resolution is bound / 2^32.
 STATE_BOUNDS = {"d_r": 1.0, "d_l": 1.0, "th1": 4.0, "th2": 4.0, "th3": 4.0, "d_r_dot": 20.0, "d_l_dot": 20.0,
-                "th1_dot": 200.0, "th2_dot": 200.0, "th3_dot": 200.0, "w": 100.0, "gyro_bias": 1.0, "z": 4.0}
+                "th1_dot": 200.0, "th2_dot": 200.0, "th3_dot": 200.0, "w": 100.0, "gyro_bias": 1.0, "z": 2.0 ** 15}
 STATE_BOUNDS_WHY = ("fixed-point ranges (resolution bound/2^32): xi_d = d - R_w phi is R_w th1 plus the "
                     "estimate's error (< 1 m); angles < 4 rad (the run stops at 0.6 / 1.2 rad); wheel speeds "
                     "< 20 m/s and rates < 200 rad/s (the motors reach 0.6 m/s and 30 rad/s, the gyro 7.7 rad/s); "
                     "disturbances < 100 V (the battery is 9 V); gyro bias < 1 rad/s (57 deg/s); integrators "
-                    "< 4 m s (each tick keeps them within kalman.integral.limit_m_s, at most half of it)")
+                    "< 2^15 m s (the loop keeps them within kalman.integral.limit_m_s once a second; within that "
+                    "second they gain |d^ - d_ref| m s at most, less than the range below 16 km of error)")
 
 
 def design_kalman(a_si, b_si, k_si, k_w, rw_m, ts_s, noise=None, integral=None):
