@@ -1,5 +1,6 @@
 """Driving (issue 21): the drive reference's profiles, course files, the core's tracking term,
 and a course run from the command line."""
+import collections
 import json
 import math
 
@@ -9,13 +10,14 @@ import pytest
 import fw_support as S
 from conftest import PAPER_GAINS, PHYSICAL_GAINS
 from hostsim.world.fake_ev3 import FakeEV3
-from tipbot_fw import cli
+from tipbot_fw import cli, kalman, pathfollow
 from tipbot_fw.config import load_config
 from tipbot_fw.course import CourseError, parse_course, read_course
 from tipbot_fw.drive import course_plan, plan_for, transition_s
 from tipbot_fw.gains import load_gains
 from tipbot_fw.kalman import KalmanCore, N_U
 from tipbot_fw.logfile import read_log
+from tipbot_fw.pathfollow import CourseFollower
 
 LIMITS = {'speed_mps': 0.25, 'accel_mps2': 0.6, 'jerk_mps3': 3.0, 'yaw_rate_dps': 100.0,
           'yaw_accel_dps2': 300.0, 'yaw_jerk_dps3': 1500.0}
@@ -65,20 +67,42 @@ def test_the_wheels_follow_distance_and_heading():
 
 
 def test_a_stall_moves_the_plan_on_by_its_periods(physical):
+    # the course keeps to the clock: a stall's periods are skipped in its rows (the deque's, and
+    # beyond them its follower's), as the ticks they were for passed
     (a, b), buf = core_pair(physical)
-    plan = plan_for(physical, a, [(0.2, 0.0, 2.0)])
-    for c in (a, b):
-        c.set_plan(plan)
+    followers = [follower_of(physical, c, [(0.2, 0.0, 2.0)]) for c in (a, b)]
     for _ in range(100):
-        a.step((0, 0, 0, 0), (0, 0), buf, 0)
+        step_followed(a, followers[0], buf)
     for _ in range(40):
-        b.step((0, 0, 0, 0), (0, 0), buf, 0)
+        step_followed(b, followers[1], buf)
     b.skip(59)
-    b.step((0, 0, 0, 0), (0, 0), buf, 0)
+    step_followed(b, followers[1], buf, fill_first=True)
+    # the 12 rows a skip keeps come first (tipbot_fw.kalman.LIVE_KEEP_ROWS), then the clock's
+    for _ in range(kalman.LIVE_KEEP_ROWS):
+        step_followed(b, followers[1], buf)
+    for _ in range(kalman.LIVE_KEEP_ROWS):
+        step_followed(a, followers[0], buf)
     assert a.reference() == b.reference() and a.reference()[2] > 0.1
     b.skip(1000)            # beyond its end: the last row, at rest, is held
-    b.step((0, 0, 0, 0), (0, 0), buf, 0)
+    step_followed(b, followers[1], buf, fill_first=True)
+    for _ in range(kalman.LIVE_KEEP_ROWS):
+        step_followed(b, followers[1], buf)
     assert b.reference()[2:] == [0.0] * 4 and b.reference()[0] > 0.3
+
+
+def follower_of(gains, core, course):
+    ref = gains.kalman.reference
+    f = CourseFollower(plan_for(gains, core, course), core, ref.track_m, ref.limits['speed_mps'], gains.ts_s)
+    f.fill()
+    core.set_live(f.rows)
+    return f
+
+
+def step_followed(core, follower, buf, fill_first=False):
+    """One tick of a course's core, its follower's rows topped up first (as the slack does)."""
+    if fill_first or len(follower.rows) < pathfollow.REFILL_BELOW:
+        follower.fill()
+    core.step((0, 0, 0, 0), (0, 0), buf, 0)
 
 
 # -- course files
@@ -144,7 +168,7 @@ def core_pair(gains):
 
 def test_standing_the_reference_changes_nothing(physical):
     (a, b), buf = core_pair(physical)
-    b.set_plan(bytes(48))                  # driving the whole product, on a reference that stays at zero
+    b.set_live(collections.deque([bytes(48)] * 200))    # driving the whole product, on a reference at zero
     rng = np.random.default_rng(0)
     for k in range(200):
         enc = tuple(int(v) for v in rng.integers(-3, 4, size=4))

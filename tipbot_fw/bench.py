@@ -44,6 +44,7 @@ from tipbot_fw.core import make_core
 from tipbot_fw.cues import OwnerCues
 from tipbot_fw.devices import MemoryDevices
 from tipbot_fw.drive import drive_problem, plan_for
+from tipbot_fw.pathfollow import CourseFollower
 from tipbot_fw.gains import ACTUATED_INPUTS, N_INPUTS, UNUSED_INPUT, gains_from_dict, load_gains
 from tipbot_fw.loop import ControlLoop
 from tipbot_fw.plausibility import EncoderBound
@@ -189,13 +190,15 @@ BENCH_SEGMENT = [(0.02, math.radians(5.0), 1.0), (-0.02, math.radians(-5.0), 1.0
 BENCH_REPEATS = 30
 
 
-def run_memory(n_ticks, gains=None, bare=False, sender=None, whole=False, drive=False):
+def run_memory(n_ticks, gains=None, bare=False, sender=None, whole=False, drive=False, follow=False):
     """The loop for 1 + n_ticks ticks on bench_devices() and a FrozenClock, with the owner's cues
     (no brick) and `sender` (a TelemetrySender or None) in its slack -> (LoopStats, log). Unless
     bare: supervised (a heartbeat page), plausibility-checked, its log written to a temporary
     file (removed). whole: what the brick pays for a tick, the real device layer (FileDevices)
     and the real clock (MonotonicClock: its reads of the time and its sleeps) included; the
-    overrun stop is off (an emulator may run a tick late)."""
+    overrun stop is off (an emulator may run a tick late). drive: a course's rows, made before the
+    run (the tick's cost); follow: made in the slack as a run makes them, corrected from the
+    robot's pose (tipbot_fw.pathfollow: the tick's cost and the follower's, between ticks)."""
     config = defaults()
     if gains is None:
         gains = synthetic_gains()
@@ -203,10 +206,16 @@ def run_memory(n_ticks, gains=None, bare=False, sender=None, whole=False, drive=
     dev = files.devices if whole else bench_devices()
     core = make_core(gains, config, dev.counts_per_rot)
     core.set_gyro_bias(0.0)
+    follower = None
     if drive:
         # the same plan whatever n_ticks (tools/tick-cost subtracts a run of 0 ticks: making the
-        # plan is start-up, not a tick's cost); a longer run holds its last row
-        core.set_plan(plan_for(gains, core, BENCH_SEGMENT * BENCH_REPEATS))
+        # plan is start-up, not a tick's cost); a longer run holds its last row. Followed as a run
+        # follows it: its rows made in the slack, corrected from the pose (tipbot_fw.pathfollow)
+        ref = gains.kalman.reference
+        follower = CourseFollower(plan_for(gains, core, BENCH_SEGMENT * BENCH_REPEATS), core, ref.track_m,
+                                  ref.limits['speed_mps'], gains.ts_s)
+        follower.fill(ahead=None if follow else n_ticks + 2)
+        core.set_live(follower.rows)
     extra = {}
     writer = None
     if bare:
@@ -231,7 +240,8 @@ def run_memory(n_ticks, gains=None, bare=False, sender=None, whole=False, drive=
                        overrun_window_s=config['limits']['overrun_window_s'],
                        duration_s=(n_ticks + 1) * gains.ts_s, realtime_priority=0, **extra)
     loop.side = slack.combine(OwnerCues(streams=()).in_loop(loop, config['limits']['warn_battery_v']),
-                              sender.attach(log, loop.stats, core) if sender else None)
+                              sender.attach(log, loop.stats, core) if sender else None,
+                              follower.side() if follow else None)
     try:
         stats = loop.run()
     finally:
@@ -437,16 +447,17 @@ def main(argv=None):
     device_layer = False
     bare = False
     whole = False
-    drive = False
+    drive = follow = False
     every = None
     usage = ('usage: python3 -m tipbot_fw.bench --ticks N [--gains FILE] [--bare | --whole] [--telemetry-every M] '
-             '[--device-layer] [--drive]')
+             '[--device-layer] [--drive [--follow]]')
     while args:
-        if args[0] in ('--bare', '--device-layer', '--whole', '--drive'):
+        if args[0] in ('--bare', '--device-layer', '--whole', '--drive', '--follow'):
             bare = bare or args[0] == '--bare'
             device_layer = device_layer or args[0] == '--device-layer'
             whole = whole or args[0] == '--whole'
             drive = drive or args[0] == '--drive'
+            follow = follow or args[0] == '--follow'
             args = args[1:]
             continue
         if args[0] == '--ticks' and len(args) > 1 and args[1].isdigit():
@@ -459,7 +470,7 @@ def main(argv=None):
             sys.stderr.write(usage + '\n')
             return 2
         args = args[2:]
-    if n_ticks is None or (whole and bare):
+    if n_ticks is None or (whole and bare) or (follow and not drive):
         sys.stderr.write(usage + '\n')
         return 2
     if device_layer:
@@ -474,14 +485,14 @@ def main(argv=None):
                                                        'needs gains with a drive reference (--gains FILE)'))
         return 2
     sender, sink = local_sender(every) if every else (None, None)
-    stats, _ = run_memory(n_ticks, gains, bare, sender, whole, drive)
+    stats, _ = run_memory(n_ticks, gains, bare, sender, whole, drive, follow)
     if stats.ticks != n_ticks + 1:
         sys.stderr.write('bench: the loop stopped after {} ticks\n'.format(stats.ticks))
         return 1
     sys.stdout.write('ticks {} (+1 start tick), gains {}{}{}\n'.format(
         n_ticks, gains_path or 'synthetic', ', bare (no heartbeat, plausibility or log file)' if bare else
         ', whole (the device layer on files and the real clock)' if whole else '',
-        ', driving a course' if drive else ''))
+        ', driving a course' + (', followed in the plane' if follow else '') if drive else ''))
     if sender is not None:
         ts_s = gains.ts_s if gains else 0.005
         sys.stdout.write('telemetry: {} datagrams of {} bytes in {} ticks (one every {}: {:.0f} per second at '

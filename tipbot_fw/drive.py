@@ -24,7 +24,8 @@ Why before the run: on the brick's soft-float CPU a profile computed in the tick
 30,000 instructions, more than half the tick's budget; made with numpy before the calibration
 (about 0.1 s for a minute of course), a tick only copies its 48 bytes. A stall's periods are
 skipped through (KalmanCore.skip): the reference keeps to the clock, as the course's times do.
-Python 3.5, numpy 1.12.
+A run follows the plan through tipbot_fw.pathfollow, which corrects its rows from the robot's
+pose in the plane. Python 3.5, numpy 1.12.
 """
 import math
 

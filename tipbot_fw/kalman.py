@@ -69,7 +69,6 @@ holding the robot cannot wind them up. Their fixed-point range (2^15 m s) is wha
 reach in that second while the position error stays below 16 km (a wheel's count itself is
 bounded at 5 km): the tick pays no check.
 """
-import itertools
 import math
 import struct
 
@@ -123,6 +122,7 @@ REF = struct.Struct('<6q')
 _IN_REF = struct.Struct('<8q{}s'.format(REF.size))    # the inputs, the constant 1, a reference row
 _HEAD = struct.Struct('<7q')          # duty_r..duty_3, xi_d_r, xi_d_l, xi_th1
 _DUTIES = struct.Struct('<4q')
+_PAIR = struct.Struct('<2q')
 _ROW_FLOATS = struct.Struct('<3d')    # battery_v, flags, gyro_angle
 # A live plan's rows a stall's skip leaves: more than the ticks the loop may go without its side
 # task, which makes them (tipbot_fw.loop.SIDE_WAIT_S: 10 ticks at 5 ms), so a tick always has one;
@@ -272,6 +272,7 @@ class KalmanCore(object):
         # worst battery of BATTERY_RANGE_V (so they never change during a run)
         self.q = fx.state_exponents(kal.state_bounds)
         self.state_lsb = np.array([2.0 ** -e for e in self.q])
+        self._wheel_lsb = (2.0 ** -self.q[0], 2.0 ** -self.q[1])
         meas = [self.rad_per_count[0], self.rad_per_count[1], self.rad_per_count[0], self.rad_per_count[1],
                 self.rad_per_count[2], self.rad_per_count[3], gyro_rad]
         self.meas_factor = meas
@@ -280,9 +281,10 @@ class KalmanCore(object):
         # metres of wheel travel per count (the wheel's angle from its zero in x^ = xi + T m)
         self.wheel_m = [wheel_m_per_count(kal.wheel_radius_m, self.polarity[i], self.counts_per_rot[i]) for i in (0, 1)]
         self.ref_lsb = [m / REF_POS_STEPS for m in self.wheel_m] + [2.0 ** -REF_RATE_EXP] * 4
-        self.plan = None        # the drive plan's rows (set_plan), or None: the robot stands
+        self.plan = None        # the drive reference's rows (set_live), or None: the robot stands
         self.next_row = None
         self.live = None
+        self.live_lag = 0       # periods a stall skipped that the live plan had no rows for
         self.ref_pos_top = REF_BOUNDS[0] - 1
         lo, hi = BATTERY_RANGE_V
         v_bounds = [DUTY_BOUND] * N_U + [2.0 ** fx.STATE_BITS] * n + list(INPUT_BOUNDS) + list(REF_BOUNDS)
@@ -464,7 +466,7 @@ class KalmanCore(object):
         d1 = r1 - p1
         j2lo, j2hi, j3lo, j3hi = self.joint_bounds
         next_row = self.next_row
-        if next_row is not None:    # driving: with this tick's reference (set_plan, set_live), in one call
+        if next_row is not None:    # driving: with this tick's reference (set_live), in one call
             _IN_REF.pack_into(self.v_bytes, self._in_off, d0, d1, r0, r1, r2, r3, gyro[1], 1, next_row())
         else:
             _IN.pack_into(self.v_bytes, self._in_off, d0, d1, r0, r1, r2, r3, gyro[1])
@@ -517,12 +519,11 @@ class KalmanCore(object):
         log's flags (logfile.SKIP_SHIFT)."""
         if periods <= 0:
             return
-        if self.live is not None:       # a live plan: skip what it has, keeping LIVE_KEEP_ROWS
-            for _ in range(min(periods, len(self.live) - LIVE_KEEP_ROWS)):
+        if self.live is not None:       # a live plan: skip what it has, keeping LIVE_KEEP_ROWS; the
+            popped = min(periods, len(self.live) - LIVE_KEEP_ROWS)     # rest its maker skips
+            for _ in range(popped):         # (live_lag: a course keeps to the clock)
                 self.live.popleft()
-        elif self.next_row is not None:     # the reference follows the clock, not the ticks
-            for _ in range(periods):
-                self.next_row()
+            self.live_lag += periods - popped
         n = self.nf     # the filter's states; the integrators hold through a stall
         v = self.v
         lsb = self.state_lsb
@@ -559,6 +560,14 @@ class KalmanCore(object):
             xi[i] += self.wheel_m[i] * int(self.v[N_U + n + 2 + i])
         return xi
 
+    def wheel_positions(self):
+        """(d^_r, d^_l) after the last tick (m): estimate()'s first two, without the rest (read
+        with struct: a numpy element costs the brick ~2,000 instructions)."""
+        xr, xl = _PAIR.unpack_from(self.v_bytes, 8 * N_U)
+        cr, cl = _PAIR.unpack_from(self.v_bytes, self._in_off + 16)
+        lr, ll = self._wheel_lsb
+        return xr * lr + self.wheel_m[0] * cr, xl * ll + self.wheel_m[1] * cl
+
     def reference(self):
         """The drive reference of the last tick (SI: d_r, d_l, v_r, v_l, a_r, a_l; zeros when
         the robot stands)."""
@@ -569,19 +578,10 @@ class KalmanCore(object):
         self.dot = self.M.dot
         self.v_in = self.v
 
-    def set_plan(self, plan):
-        """Drive: `plan` (bytes, tipbot_fw.drive.course_plan) holds the reference's six
-        integers for every tick from the first step on; its last row is held once it ends."""
-        if len(plan) < REF.size or len(plan) % REF.size:
-            raise ValueError('a drive plan is whole rows of {} bytes'.format(REF.size))
-        # one bytes object a row, handed out by an iterator: a tick's cheapest copy on the brick
-        self.plan = ref_rows(plan)
-        self.next_row = itertools.chain(self.plan, itertools.repeat(self.plan[-1])).__next__
-        self._driving()
-
     def set_live(self, rows):
-        """Drive from a live plan: `rows` (a collections.deque of 48-byte rows, tipbot_fw.remote)
-        that the loop's slack keeps filled (more than LIVE_KEEP_ROWS ahead); one is taken each tick."""
+        """Drive from a live plan: `rows` (a collections.deque of 48-byte rows, made by
+        tipbot_fw.pathfollow for a course, tipbot_fw.remote for a remote) that the loop's slack
+        keeps filled (more than LIVE_KEEP_ROWS ahead); one is taken each tick."""
         self.plan = self.live = rows
         self.next_row = rows.popleft
         self._driving()

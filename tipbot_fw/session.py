@@ -118,9 +118,15 @@ def run_session(devices, gains, config, clock, log_path=None, duration_s=None,
         lim = config['limits']
         # the core first: its fixed-point format refuses a configuration before anything moves
         core = run['core'] = make_core(gains, config, devices.counts_per_rot, layout)
+        follower = None
         if course is not None:      # before the calibration: nothing is watched or driven yet
             from tipbot_fw.drive import plan_for       # here: a run that stands keeps it out of memory
-            core.set_plan(plan_for(gains, core, course))
+            from tipbot_fw.pathfollow import CourseFollower
+            ref = gains.kalman.reference
+            follower = CourseFollower(plan_for(gains, core, course), core, ref.track_m, ref.limits['speed_mps'],
+                                      gains.ts_s)
+            follower.fill()
+            core.set_live(follower.rows)
         live = None
         if remote is not None:
             from tipbot_fw.remote import LivePlan, remote_side
@@ -156,7 +162,8 @@ def run_session(devices, gains, config, clock, log_path=None, duration_s=None,
         run['loop'].side = slack.combine(   # after let_go: the rest of its melody plays in the loop
             cues.in_loop(run['loop'], lim['warn_battery_v']),
             telemetry.attach(rows, run['loop'].stats, core) if telemetry else None,
-            remote_side(remote, live, gains.ts_s) if live is not None else None)
+            remote_side(remote, live, gains.ts_s) if live is not None else None,
+            follower.side() if follower is not None else None)
         run['loop'].run()
 
     def stop_motors():
