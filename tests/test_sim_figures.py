@@ -116,6 +116,36 @@ def test_monte_carlo_histograms_say_what_they_count(figures):
     assert "[rad]" in hist_tilt.get_xlabel() and "[V]" in hist_u.get_xlabel()
 
 
+def test_both_gains_files_histograms_share_their_bins(figures):
+    a = [{"success": True, "peak_abs_th1_rad": 0.01 * k, "peak_abs_u_v": 4 + 0.1 * k} for k in range(10)]
+    b = [{"success": True, "peak_abs_th1_rad": 0.05 + 0.002 * k, "peak_abs_u_v": 2 + 0.5 * k} for k in range(10)]
+    plots.montecarlo_figure({"physical": {"runs": a}, "paper": {"runs": b}}, "mc.png")
+    for ax in figures[0].axes[:2]:
+        widths = {round(p.get_width(), 12) for p in ax.patches}
+        assert len(widths) == 1, widths                      # one bin width for both files' bars
+
+
+def test_inputs_say_when_nothing_saturated_and_the_disturbance_band_is_named(figures):
+    sc = parse_scenario({"duration_s": 4.0, "disturbances": [{"t_start_s": 1.0, "t_end_s": 2.0,
+                                                              "w_v": [1, 1, 0, 0, 0]}]}, "<test>")
+    runs = section7_like_runs()
+    plots.inputs(sc, runs, U_MAX_V, "inputs.png")            # the demand is cut: dotted lines
+    top = figures[0].axes[0]
+    assert "no input saturated" not in top.get_title(loc="left")
+    assert any(line.get_linestyle() == ":" for line in top.get_lines())
+    legend = [t.get_text() for t in figures[0].legends[0].get_texts()]
+    assert "input disturbance (1, 1 V)" in legend
+    calm = {k: dataclasses.replace(v, u_unsat=v.u.copy()) for k, v in runs.items()}
+    plots.inputs(sc, calm, U_MAX_V, "inputs.png")
+    assert "no input saturated" in figures[1].axes[0].get_title(loc="left")
+    assert not any(line.get_linestyle() == ":" for line in figures[1].axes[0].get_lines())
+
+
+def test_the_pd_is_drawn_apart_from_the_optimal_controller_in_a_comparison():
+    assert plots._style("firmware/pd", solo=True)["color"] != plots._style("firmware/optimal", solo=True)["color"]
+    assert plots._style("firmware/pd", solo=True)["linestyle"] == "--"
+
+
 def test_summary_columns_carry_units_and_split_the_estimation_error_by_unit():
     names = [name for name, _ in runner.SUMMARY_COLUMNS]
     for name in names[2:]:

@@ -282,9 +282,10 @@ def margin_cells(res, label):
             cells[m.key] = "fails without it"
             continue
         worst = min(rows, key=lambda r: r["margin"])
-        text = ("%s%g" % (">= " if worst["at_least"] else "", round(worst["margin"], 6)))
+        # three significant digits: a bisection's points (32.8125) claim more than its tolerance
+        text = ("%s%.3g" % (">= " if worst["at_least"] else "", worst["margin"]))
         if len(rows) > 1:
-            text += " (%s)" % ", ".join("%s%g" % ("+" if r["sign"] > 0 else "-", round(r["margin"], 6))
+            text += " (%s)" % ", ".join("%s%.3g" % ("+" if r["sign"] > 0 else "-", r["margin"])
                                         for r in sorted(rows, key=lambda r: -r["sign"]))
         cells[m.key] = text
     return cells

@@ -6,7 +6,7 @@
 - ``positions.png``, ``velocities.png``, ``inputs.png``: as Figures 8, 9 and 10 (the paper
   draws its simulation in red and its experiment in blue: here the linear run is red and
   the firmware-in-the-loop run blue, the nonlinear ideal-measurement run green); inputs
-  before saturation dashed, and a demand beyond the axis drawn whole in an inset of the start;
+  before saturation dotted where saturation cut it, and a demand beyond the axis drawn whole in an inset of the start;
 - ``compare_<mode>.png``: optimal against PD, as Figure A1;
 - robustness figures for the Monte Carlo and the region of attraction.
 
@@ -30,6 +30,7 @@ INPUT_LABELS = ((0, r"$u_1$ right wheel [V]"), (1, r"$u_2$ left wheel [V]"), (3,
 DISPLAY = np.array([100, 100, 1, 1, 1, 100, 100, 1, 1, 1], dtype=float)
 MODE_COLORS = {"linear": "tab:red", "nonlinear": "tab:green", "firmware": "tab:blue"}
 CONTROLLER_STYLE = {"optimal": "-", "pd": "--"}
+CONTROLLER_SOLO_COLORS = {"pd": "k"}
 LETTERS = "abcdefghij"
 
 
@@ -46,7 +47,7 @@ PAPER_FIGURES = {
     "appendix_d": {"compare": "A1"},
 }
 WHAT = {"states_estimates": "states (solid) and estimates (dotted)", "estimation_errors": "estimation errors x~ - x",
-        "positions": "positions", "velocities": "velocities", "inputs": "control inputs (dashed: before saturation)",
+        "positions": "positions", "velocities": "velocities", "inputs": "control inputs (dotted: the demand where saturation cut it)",
         "compare": "optimal controller (solid) vs PD (dashed)"}
 
 
@@ -61,9 +62,12 @@ def caption(scenario, key):
 
 
 def _style(label, solo=False):
-    """Line style of a run; solo: the only mode in the figure (no band to tell it from another)."""
+    """Line style of a run; solo: the only mode in the figure (no band to tell it from another),
+    where the controllers differ by colour too (the PD's dashed line in black: a dash alone is
+    lost in a noisy trace of the same colour)."""
     mode, controller = label.split("/")
-    return dict(color=MODE_COLORS.get(mode, "k"), linestyle=CONTROLLER_STYLE.get(controller, "-"),
+    color = CONTROLLER_SOLO_COLORS.get(controller) if solo else None
+    return dict(color=color or MODE_COLORS.get(mode, "k"), linestyle=CONTROLLER_STYLE.get(controller, "-"),
                 linewidth=1.0 if solo else MODE_WIDTH.get(mode, 1.0), zorder=MODE_ZORDER.get(mode, 2),
                 alpha=1.0 if solo else MODE_ALPHA.get(mode, 1.0))
 
@@ -77,10 +81,15 @@ def _time_end(sc, runs):
 
 
 def _shade(ax, sc, runs):
+    """The scenario's input disturbances as grey bands, named once in the legend."""
     end = _time_end(sc, runs)
+    named = False
     for d in sc.disturbances:
         if any(d.w_v) and d.t_start_s < end:
-            ax.axvspan(d.t_start_s, min(d.t_end_s, end), color="0.88", zorder=0)
+            volts = ", ".join("%g" % v for v in d.w_v if v)
+            ax.axvspan(d.t_start_s, min(d.t_end_s, end), color="0.88", zorder=0,
+                       label=None if named else "input disturbance (%s V)" % volts)
+            named = True
     ax.set_xlim(0.0, end)
 
 
@@ -211,7 +220,7 @@ def _inset_demand(ax, runs, i, u_max_v, ts_s):
         ins.plot(r.t_s[sel], r.u[sel, i], color=st["color"], linewidth=min(st["linewidth"], 1.5),
                  alpha=st["alpha"], zorder=st["zorder"])
         if _demand(r, i) is not None:
-            ins.plot(r.t_s[sel], _demand(r, i)[sel], color=st["color"], linestyle="--", marker=".",
+            ins.plot(r.t_s[sel], _demand(r, i)[sel], color=st["color"], linestyle=":", marker=".",
                      markersize=2.5, linewidth=0.7, zorder=st["zorder"] - 0.5)
     for s in (-1, 1):
         ins.axhline(s * u_max_v, color="k", linewidth=0.5, linestyle="-.")
@@ -248,18 +257,31 @@ def _demand(run, i):
     return None if u is None or not np.isfinite(u[:, i]).any() else u[:, i]
 
 
+def _cut(run, i):
+    """The demand where saturation cut it (NaN elsewhere: where it is the input, the input's line
+    shows it), or None without a demand or a cut."""
+    d = _demand(run, i)
+    if d is None:
+        return None
+    cut = np.abs(d - run.u[:, i]) > 1e-9
+    return np.where(cut, d, np.nan) if cut.any() else None
+
+
 def inputs(sc, runs, u_max_v, path):
     fig, axes = _grid(4, 1, caption(sc.name, "inputs"))
     ts_s = np.diff(next(iter(runs.values())).t_s[:2])[0]
+    any_cut = False
     for p, (i, name) in enumerate(INPUT_LABELS):
         ax = axes.flat[p]
         _shade(ax, sc, runs)
         for label, run in runs.items():
             st = _style(label)
             ax.plot(run.t_s, run.u[:, i], label=label, **st)
-            if _demand(run, i) is not None:
-                ax.plot(run.t_s, _demand(run, i), color=st["color"], linestyle="--", linewidth=0.7,
-                        alpha=0.7, zorder=st["zorder"] - 0.5)
+            cut = _cut(run, i)
+            if cut is not None:
+                any_cut = True
+                ax.plot(run.t_s, cut, color=st["color"], linestyle=":", linewidth=0.9,
+                        alpha=0.8, zorder=st["zorder"] - 0.5)
         for s in (-1, 1):
             ax.axhline(s * u_max_v, color="k", linewidth=0.6, linestyle="-.")
         limit = 1.05 * INPUT_AXIS_RAILS * u_max_v
@@ -272,6 +294,8 @@ def inputs(sc, runs, u_max_v, path):
         ax.set_title("(%s)" % LETTERS[p], fontsize=8, loc="left")
     _figure_legend(fig, axes.flat[0])
     axes.flat[-1].set_xlabel("t [s]", fontsize=8)
+    if not any_cut:     # the caption's dotted line: say why there is none
+        axes.flat[0].set_title("(a)   no input saturated: no dotted line", fontsize=8, loc="left")
     return _save(fig, path)
 
 
@@ -338,14 +362,18 @@ def plan_view(sc, runs, path):
 def montecarlo_figure(results, path, what="parameter, sensor and timing uncertainty"):
     """Distributions of peak tilt and peak voltage per gains file, successes and failures."""
     fig, axes = plt.subplots(1, 3, figsize=(15, 3.8))
+    # one set of bins for every gains file's histogram: overlaid, their bars compare
+    every = [r for res in results.values() for r in res["runs"]]
+    tilt_bins = np.histogram_bin_edges([r["peak_abs_th1_rad"] for r in every], bins=30)
+    volt_bins = np.histogram_bin_edges([r["peak_abs_u_v"] for r in every], bins=30)
     for i, (name, res) in enumerate(results.items()):
         color = "C%d" % i
         rows = res["runs"]
         ok = np.array([r["success"] for r in rows])
         tilt = np.array([r["peak_abs_th1_rad"] for r in rows])
         volt = np.array([r["peak_abs_u_v"] for r in rows])
-        axes[0].hist(tilt, bins=30, alpha=0.5, color=color, label="%s (%.0f %% ok)" % (name, 100 * ok.mean()))
-        axes[1].hist(volt, bins=30, alpha=0.5, color=color, label=name)
+        axes[0].hist(tilt, bins=tilt_bins, alpha=0.5, color=color, label="%s (%.0f %% ok)" % (name, 100 * ok.mean()))
+        axes[1].hist(volt, bins=volt_bins, alpha=0.5, color=color, label=name)
         if ok.any():
             axes[2].scatter(tilt[ok], volt[ok], s=8, color=color, label=name + " ok")
         if (~ok).any():
