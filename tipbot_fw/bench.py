@@ -45,6 +45,7 @@ from tipbot_fw.cues import OwnerCues
 from tipbot_fw.devices import MemoryDevices
 from tipbot_fw.drive import drive_problem, plan_for
 from tipbot_fw.pathfollow import CourseFollower
+from tipbot_fw.remote import LivePlan, remote_side
 from tipbot_fw.gains import ACTUATED_INPUTS, N_INPUTS, UNUSED_INPUT, gains_from_dict, load_gains
 from tipbot_fw.loop import ControlLoop
 from tipbot_fw.plausibility import EncoderBound
@@ -190,7 +191,16 @@ BENCH_SEGMENT = [(0.02, math.radians(5.0), 1.0), (-0.02, math.radians(-5.0), 1.0
 BENCH_REPEATS = 30
 
 
-def run_memory(n_ticks, gains=None, bare=False, sender=None, whole=False, drive=False, follow=False):
+class _SteadyReceiver(object):
+    """A remote's receiver that always has the same command (0.1 m/s, no turn): the bench's."""
+    host = 'bench'
+
+    def poll(self, now_s):
+        return 0.1, 0.0
+
+
+def run_memory(n_ticks, gains=None, bare=False, sender=None, whole=False, drive=False, follow=False,
+               remote=False):
     """The loop for 1 + n_ticks ticks on bench_devices() and a FrozenClock, with the owner's cues
     (no brick) and `sender` (a TelemetrySender or None) in its slack -> (LoopStats, log). Unless
     bare: supervised (a heartbeat page), plausibility-checked, its log written to a temporary
@@ -198,7 +208,9 @@ def run_memory(n_ticks, gains=None, bare=False, sender=None, whole=False, drive=
     and the real clock (MonotonicClock: its reads of the time and its sleeps) included; the
     overrun stop is off (an emulator may run a tick late). drive: a course's rows, made before the
     run (the tick's cost); follow: made in the slack as a run makes them, corrected from the
-    robot's pose (tipbot_fw.pathfollow: the tick's cost and the follower's, between ticks)."""
+    robot's pose (tipbot_fw.pathfollow: the tick's cost and the follower's, between ticks); remote:
+    driven by a remote's live plan instead (tipbot_fw.remote; a receiver that always has the same
+    command: the plan's rows and the poll, between ticks)."""
     config = defaults()
     if gains is None:
         gains = synthetic_gains()
@@ -206,8 +218,13 @@ def run_memory(n_ticks, gains=None, bare=False, sender=None, whole=False, drive=
     dev = files.devices if whole else bench_devices()
     core = make_core(gains, config, dev.counts_per_rot)
     core.set_gyro_bias(0.0)
-    follower = None
-    if drive:
+    follower = live = None
+    if remote:
+        ref = gains.kalman.reference
+        live = LivePlan(ref.limits, ref.track_m, gains.ts_s, core.ref_lsb, core.ref_pos_top)
+        live.fill()
+        core.set_live(live.rows)
+    elif drive:
         # the same plan whatever n_ticks (tools/tick-cost subtracts a run of 0 ticks: making the
         # plan is start-up, not a tick's cost); a longer run holds its last row. Followed as a run
         # follows it: its rows made in the slack, corrected from the pose (tipbot_fw.pathfollow)
@@ -241,7 +258,8 @@ def run_memory(n_ticks, gains=None, bare=False, sender=None, whole=False, drive=
                        duration_s=(n_ticks + 1) * gains.ts_s, realtime_priority=0, **extra)
     loop.side = slack.combine(OwnerCues(streams=()).in_loop(loop, config['limits']['warn_battery_v']),
                               sender.attach(log, loop.stats, core) if sender else None,
-                              follower.side() if follow else None)
+                              follower.side() if follow else None,
+                              remote_side(_SteadyReceiver(), live, gains.ts_s) if remote else None)
     try:
         stats = loop.run()
     finally:
@@ -447,17 +465,18 @@ def main(argv=None):
     device_layer = False
     bare = False
     whole = False
-    drive = follow = False
+    drive = follow = remote = False
     every = None
     usage = ('usage: python3 -m tipbot_fw.bench --ticks N [--gains FILE] [--bare | --whole] [--telemetry-every M] '
-             '[--device-layer] [--drive [--follow]]')
+             '[--device-layer] [--drive [--follow] | --remote]')
     while args:
-        if args[0] in ('--bare', '--device-layer', '--whole', '--drive', '--follow'):
+        if args[0] in ('--bare', '--device-layer', '--whole', '--drive', '--follow', '--remote'):
             bare = bare or args[0] == '--bare'
             device_layer = device_layer or args[0] == '--device-layer'
             whole = whole or args[0] == '--whole'
             drive = drive or args[0] == '--drive'
             follow = follow or args[0] == '--follow'
+            remote = remote or args[0] == '--remote'
             args = args[1:]
             continue
         if args[0] == '--ticks' and len(args) > 1 and args[1].isdigit():
@@ -480,19 +499,20 @@ def main(argv=None):
     if gains_path is None and os.path.isfile(REPO_GAINS):
         gains_path = REPO_GAINS
     gains = load_gains(gains_path) if gains_path else None
-    if drive and (gains is None or drive_problem(gains, defaults())):
+    if (drive or remote) and (gains is None or drive_problem(gains, defaults())):
         sys.stderr.write('bench: --drive: {}\n'.format(drive_problem(gains, defaults()) if gains else
                                                        'needs gains with a drive reference (--gains FILE)'))
         return 2
     sender, sink = local_sender(every) if every else (None, None)
-    stats, _ = run_memory(n_ticks, gains, bare, sender, whole, drive, follow)
+    stats, _ = run_memory(n_ticks, gains, bare, sender, whole, drive, follow, remote)
     if stats.ticks != n_ticks + 1:
         sys.stderr.write('bench: the loop stopped after {} ticks\n'.format(stats.ticks))
         return 1
     sys.stdout.write('ticks {} (+1 start tick), gains {}{}{}\n'.format(
         n_ticks, gains_path or 'synthetic', ', bare (no heartbeat, plausibility or log file)' if bare else
         ', whole (the device layer on files and the real clock)' if whole else '',
-        ', driving a course' + (', followed in the plane' if follow else '') if drive else ''))
+        ', driving a course' + (', followed in the plane' if follow else '') if drive else
+        ', driven by a remote' if remote else ''))
     if sender is not None:
         ts_s = gains.ts_s if gains else 0.005
         sys.stdout.write('telemetry: {} datagrams of {} bytes in {} ticks (one every {}: {:.0f} per second at '

@@ -13,23 +13,23 @@ the fastest allowed). With no command obeyed for TIMEOUT_S the command is zero: 
 comes to rest and keeps balancing.
 
 The reference is made in the loop's slack (a side task, tipbot_fw.slack), LOOKAHEAD_TICKS ahead
-of the ticks, in batches with numpy: each change of a channel's command a smoothstep as a
-course's (tipbot_fw.drive), a change that arrives during another one waiting for it to end. The
-core copies one row a tick (KalmanCore.set_live): the loop runs its side task at least every 10
-ticks, and a stall's skip leaves the plan 12 rows (tipbot_fw.kalman.LIVE_KEEP_ROWS).
+of the ticks, a row at a time in scalar Python (about 32,000 instructions on the brick; with
+numpy, whose every call costs about 20,000, one row was 540,000: more than the slack of a tick):
+each change of a channel's command a smoothstep as a course's (tipbot_fw.drive), a change that
+arrives during another one waiting for it to end. The core copies one row a tick
+(KalmanCore.set_live): the loop runs its side task at least every 10 ticks, and a stall's skip
+leaves the plan 12 rows (tipbot_fw.kalman.LIVE_KEEP_ROWS).
 
-Python 3.5, standard library and numpy.
+Python 3.5, standard library.
 """
 import collections
 import math
 import socket
 import struct
 
-import numpy as np
-
 from tipbot_fw.course import channel_limits, transition_s
-from tipbot_fw.drive import reference_ints, smoothstep
-from tipbot_fw.kalman import ref_rows
+from tipbot_fw.drive import smoothstep
+from tipbot_fw.kalman import REF
 
 MAGIC = b'TBDR'
 COMMAND = struct.Struct('<4sIff')
@@ -132,21 +132,20 @@ class _Channel(object):
             self.T = transition_s(self.dv, self.a_max, self.j_max)
             self.t0 = t_s
 
-    def batch(self, t, dt):
-        """(position, rate, acceleration) at the times t (one batch of ticks)."""
-        if self.pending is not None and t[0] >= self.t0 + self.T:
+    def advance(self, t, dt):
+        """(position, rate, acceleration) at time t, one tick of dt after the last call: scalar
+        Python (module docstring: a numpy call costs the brick ~20,000 instructions)."""
+        if self.pending is not None and t >= self.t0 + self.T:
             self._start(self.pending, self.t0 + self.T)
         if self.T > 0.0:
-            x = np.clip((t - self.t0) / self.T, 0.0, 1.0)
+            x = min(1.0, max(0.0, (t - self.t0) / self.T))
             d_rate, acc = smoothstep(x, self.dv, self.T)
             rate = self.v0 + d_rate
         else:
-            rate = np.full(len(t), self.v0 + self.dv)
-            acc = np.zeros(len(t))
-        prev = np.concatenate([[self.last_rate], rate[:-1]])
-        pos = self.pos + np.cumsum(0.5 * (prev + rate) * dt)
-        self.pos, self.last_rate = float(pos[-1]), float(rate[-1])
-        return pos, rate, acc
+            rate, acc = self.v0 + self.dv, 0.0
+        self.pos += 0.5 * (self.last_rate + rate) * dt
+        self.last_rate = rate
+        return self.pos, rate, acc
 
 
 class LivePlan(object):
@@ -170,16 +169,20 @@ class LivePlan(object):
         self.yaw.command(max(-room, min(room, yaw_rate_rad_s)), t)
 
     def fill(self, ahead=LOOKAHEAD_TICKS):
-        """Rows until `ahead` wait for the ticks."""
+        """Rows until `ahead` wait for the ticks (drive.reference_ints' arithmetic, a row at a time)."""
         n = ahead - len(self.rows)
-        if n <= 0:
-            return
-        t = np.arange(self.made + 1, self.made + 1 + n, dtype=np.float64) * self.dt
-        s, v, a = self.fwd.batch(t, self.dt)
-        psi, w, al = self.yaw.batch(t, self.dt)
-        data = reference_ints(s, psi, v, w, a, al, self.track_m, self.ref_lsb, self.top).tobytes()
-        self.rows.extend(ref_rows(data))
-        self.made += n
+        h = 0.5 * self.track_m
+        l0, l1, l2, l3, l4, l5 = self.ref_lsb
+        top = self.top
+        for k in range(self.made + 1, self.made + 1 + n):
+            t = k * self.dt
+            s, v, a = self.fwd.advance(t, self.dt)
+            psi, w, al = self.yaw.advance(t, self.dt)
+            d_r = max(-top, min(top, int((s + psi * h) / l0)))
+            d_l = max(-top, min(top, int((s - psi * h) / l1)))
+            self.rows.append(REF.pack(d_r, d_l, int((v + w * h) / l2), int((v - w * h) / l3),
+                                      int((a + al * h) / l4), int((a - al * h) / l5)))
+        self.made += max(n, 0)
 
 
 def remote_side(receiver, plan, period_s):
