@@ -36,9 +36,9 @@ import numpy as np
 from tipbot_fw.kalman import REF, ref_rows
 
 UPDATE_TICKS = 20           # the pose compared every 20 ticks (10 Hz at 5 ms): well above the offsets' rate
-# rows made ahead of the ticks: refilled to LOOKAHEAD_TICKS in batches (of 30: numpy's overhead
-# once, not each tick) once fewer than REFILL_BELOW
-# are left (a side task comes at least every 10 ticks: more than the 12 rows a skip keeps remain)
+# rows made ahead of the ticks: refilled to LOOKAHEAD_TICKS once fewer than REFILL_BELOW are left,
+# in batches of 30 (numpy's overhead once, not each tick); a side task comes at least every 10
+# ticks, so more than the 12 rows a skip keeps always remain
 LOOKAHEAD_TICKS = 54
 REFILL_BELOW = 24
 LOOKAHEAD_M = 0.3           # steering: the heading towards the path, e_y / 0.3 m (1.5 s at 0.2 m/s)
@@ -109,7 +109,6 @@ class CourseFollower(object):
         self.h = float(track_m) / 2.0
         self.lsb = (float(core.ref_lsb[0]), float(core.ref_lsb[1]))
         self.v_lsb = float(core.ref_lsb[2])
-        self.top = core.ref_pos_top
         self.v_top = float(top_speed_mps)
         self.robot = Odometry(track_m)
         self.ref_pose = reference_poses(self.ints, self.lsb, track_m)
