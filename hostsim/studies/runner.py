@@ -114,7 +114,9 @@ SUMMARY_COLUMNS = (
     ("run", "%-18s"), ("up", "%-11s"), ("|th1| rad", "%9s"), ("|th2| rad", "%9s"), ("|th3| rad", "%9s"),
     ("|u| V", "%6s"), ("demand V", "%8s"), ("sat %", "%5s"), ("settle s", "%8s"), ("|d| end m", "%9s"),
 ) + tuple(("est %s" % unit, "%9s") for unit, _ in STATE_UNIT_GROUPS)
-SUMMARY_NOTE = ("|th| and |u|: peaks; demand: the largest input asked for before saturation; |d| end: distance "
+SUMMARY_NOTE = ("|th| and |u|: peaks (|u|: the volts the motors got, which on the firmware's runs can pass "
+                "u_max by half a duty step, 0.04 V, plus what the battery rose since its last reading, once a "
+                "second); demand: the largest input asked for before saturation; |d| end: distance "
                 "from the wheel origin at the end; est <unit>: the largest |estimate - x| over the last quarter of "
                 "the run, of the states in that unit (d; th1-3; d'; th1-3'): the firmware's Kalman filter's x^, "
                 "the detector's x~ in the linear and nonlinear runs")
