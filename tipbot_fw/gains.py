@@ -400,8 +400,15 @@ KALMAN_KEYS = ('state_names', 'state_units', 'measurement_names', 'measurement_u
 _X_NAMES = ('d_r', 'd_l', 'th1', 'th2', 'th3', 'd_r_dot', 'd_l_dot', 'th1_dot', 'th2_dot', 'th3_dot')
 _X_UNITS = ('m', 'm', 'rad', 'rad', 'rad', 'm/s', 'm/s', 'rad/s', 'rad/s', 'rad/s')
 _W_NAMES = ('w_r', 'w_l', 'w_th2', 'w_th3')
-# the law's integrators of the wheel positions (tipbot_fw.kalman, "Integral action"), optional
-_Z_NAMES = ('z_r', 'z_l')
+# the law's integrators of the wheel positions (tipbot_fw.kalman, "Integral action"), optional:
+# the last states of a Kalman block that has them
+INTEGRATOR_NAMES = ('z_r', 'z_l')
+
+
+def integrator_count(state_names):
+    """How many of the states are the law's integrators (the last ones): 0 or 2."""
+    return len(INTEGRATOR_NAMES) if tuple(state_names[-len(INTEGRATOR_NAMES):]) == INTEGRATOR_NAMES else 0
+
 _MEASUREMENTS = (('phi_r', 'rad'), ('phi_l', 'rad'), ('th2', 'rad'), ('th3', 'rad'), ('gyro', 'rad/s'))
 # The folded law must equal the fold of the block's matrices to this fraction of its row's
 # largest entry (the file has 12 significant digits; the fold sums a few dozen products).
@@ -425,13 +432,13 @@ def _kalman_block(doc, f):
     names = doc['state_names']
     n = len(names) if isinstance(names, list) else 0
     k.state_names = list(f.check('kalman.state_names', names, fields.strings(n)))
-    nz = len(_Z_NAMES) if tuple(names[-len(_Z_NAMES):]) == _Z_NAMES else 0
+    nz = integrator_count(names) if isinstance(names, list) else 0
     nf = n - nz
     w = names[10:nf - 1]
     if not (11 <= nf <= 15 and tuple(names[:10]) == _X_NAMES and names[nf - 1] == 'gyro_bias'
             and all(v in _W_NAMES for v in w) and len(set(w)) == len(w)):
         f.fail('kalman.state_names', 'must be the 10 states, some of {}, gyro_bias and optionally {}, got {!r}'.format(
-            ', '.join(_W_NAMES), ', '.join(_Z_NAMES), names))
+            ', '.join(_W_NAMES), ', '.join(INTEGRATOR_NAMES), names))
     units = list(_X_UNITS) + ['V'] * len(w) + ['rad/s'] + ['m s'] * nz
     if doc['state_units'] != units:
         f.fail('kalman.state_units', 'must be {!r} (SI), got {!r}'.format(units, doc['state_units']))

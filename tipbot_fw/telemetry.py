@@ -32,6 +32,7 @@ import operator
 import socket
 import struct
 
+from tipbot_fw.gains import INTEGRATOR_NAMES, integrator_count
 from tipbot_fw.logfile import REFERENCE_COLUMNS, STATE_NAMES
 
 MAGIC = b'TBTM'
@@ -49,7 +50,6 @@ REFERENCE_NAMES = tuple(name for name, _ in REFERENCE_COLUMNS)
 DISTURBANCES = ('w_r', 'w_l', 'w_th2', 'w_th3')
 # A law with integral action (tipbot_fw.kalman): its integrators' states after the gyro bias
 INTEGRAL = 0x20
-INTEGRATORS = ('z_r', 'z_l')
 # The row's columns each datagram carries, per core; 'xi_*' stands for the Kalman filter's
 # states in the row's order (10 robot states, its disturbance states, the gyro bias)
 ROW_FIELDS = {
@@ -134,7 +134,7 @@ class Layout(object):
             self.consts = None
         elif code & KALMAN and not code & ~(KALMAN | REFERENCE | INTEGRAL | 15):
             self.states = (list(STATE_NAMES) + [w for i, w in enumerate(DISTURBANCES) if code >> i & 1] + ['gyro_bias']
-                           + (list(INTEGRATORS) if code & INTEGRAL else []))
+                           + (list(INTEGRATOR_NAMES) if code & INTEGRAL else []))
             n = len(self.states)
             self.fields = self.expand(ROW_FIELDS['kalman'], self.states)
             nr = len(REFERENCE_NAMES) if code & REFERENCE else 0
@@ -159,12 +159,12 @@ class Layout(object):
         if rows.estimator == 'detector':
             return cls(0)
         names = list(rows.state_names)
-        z = INTEGRATORS if tuple(names[-len(INTEGRATORS):]) == INTEGRATORS else ()
-        w = names[10:len(names) - len(z) - 1]
+        nz = integrator_count(names)
+        w = names[10:len(names) - nz - 1]
         bad = [s for s in w if s not in DISTURBANCES]
         if bad:
             raise TelemetryError('telemetry: the Kalman filter\'s state {} has no place in a datagram'.format(bad[0]))
-        return cls(KALMAN | (REFERENCE if driving else 0) | (INTEGRAL if z else 0)
+        return cls(KALMAN | (REFERENCE if driving else 0) | (INTEGRAL if nz else 0)
                    | sum(1 << DISTURBANCES.index(s) for s in w))
 
 

@@ -33,7 +33,7 @@ from hostsim.model import reference
 from hostsim.model.equations import INPUT_NAMES, STATE_NAMES, RobotModel, Variant, get_variant, state_scale_to_si
 from hostsim.model.params import DEFAULT_PARAMS_PATH, load_params, params_hash
 from hostsim.paths import GAINS_DIR
-from tipbot_fw.gains import ACTUATED_INPUTS
+from tipbot_fw.gains import ACTUATED_INPUTS, integrator_count
 
 SCHEMA_VERSION = 2
 DEFAULT_TS_S = 0.005
@@ -299,7 +299,7 @@ def with_law(doc, k_file=None, k_w=None, note=""):
     si = gains_from_dict(dict(out, kalman=doc["kalman"]), "<with_law>", check_kalman=False)
     kal = out["kalman"]
     dist = [i for i, name in enumerate(("w_r", "w_l", "w_th2", "w_th3")) if name in kal["state_names"]]
-    nz = sum(name in kalman.INTEGRAL_NAMES for name in kal["state_names"])
+    nz = integrator_count(kal["state_names"])
     k_z = np.array(kal["K"])[:, len(kal["state_names"]) - nz:] if nz else None    # the integrators' own
     k_a = kalman.law_gain(si.K, si.K_w, dist, k_z)
     kal["K"] = k_a.tolist()

@@ -36,8 +36,9 @@ import numpy as np
 import scipy.linalg
 
 from hostsim.errors import DesignError
+from hostsim.model import design
 from tipbot_fw import kalman as fw_kalman
-from tipbot_fw.gains import ACTUATED_INPUTS
+from tipbot_fw.gains import ACTUATED_INPUTS, INTEGRATOR_NAMES
 
 N_X = 10
 N_U = len(ACTUATED_INPUTS)
@@ -58,9 +59,8 @@ DEG = math.pi / 180.0
 ENCODER_COUNTS_PER_ROT = 360
 
 
-# The law's integrators of the wheel positions (tipbot_fw.kalman, "Integral action"), after the
-# filter's states where a design has them.
-INTEGRAL_NAMES = ("z_r", "z_l")
+# The unit of the law's integrators of the wheel positions (tipbot_fw.gains.INTEGRATOR_NAMES,
+# after the filter's states where a design has them: tipbot_fw.kalman, "Integral action").
 INTEGRAL_UNIT = "m s"
 # The integrators' authority: at their limit they ask at most this share of u_max of a motor (the
 # rest for balancing and driving); a tilt estimate 0.02 rad off (a start a degree off upright)
@@ -69,11 +69,11 @@ INTEGRAL_SHARE = 0.5
 
 
 def state_names(dist_inputs=DISTURBANCE_INPUTS, integral=False):
-    return X_NAMES + tuple(W_NAMES[i] for i in dist_inputs) + ("gyro_bias",) + (INTEGRAL_NAMES if integral else ())
+    return X_NAMES + tuple(W_NAMES[i] for i in dist_inputs) + ("gyro_bias",) + (INTEGRATOR_NAMES if integral else ())
 
 
 def state_units(dist_inputs=DISTURBANCE_INPUTS, integral=False):
-    return X_UNITS + ("V",) * len(dist_inputs) + ("rad/s",) + ((INTEGRAL_UNIT,) * len(INTEGRAL_NAMES) if integral else ())
+    return X_UNITS + ("V",) * len(dist_inputs) + ("rad/s",) + ((INTEGRAL_UNIT,) * len(INTEGRATOR_NAMES) if integral else ())
 
 
 @dataclasses.dataclass(frozen=True)
@@ -228,7 +228,7 @@ class IntegralLaw:
     u_max_v: float
 
     def document(self):
-        return {"states": list(INTEGRAL_NAMES), "limit_m_s": self.limit_m_s, "share_of_u_max": INTEGRAL_SHARE,
+        return {"states": list(INTEGRATOR_NAMES), "limit_m_s": self.limit_m_s, "share_of_u_max": INTEGRAL_SHARE,
                 "why": "z = integral of (d^ - d_ref) of each wheel (tipbot_fw.kalman, 'Integral action'); the "
                        "LQR's integral weight is the wheel position's over hostsim.model.gains.INTEGRAL_TIME_S; "
                        "each z is kept within limit_m_s, where both together ask %g of u_max = %g V of a motor "
@@ -246,15 +246,9 @@ def with_integrators(aa, ba, ca, gain, ts_s):
     """The filter's (A_a, B_a, C_a, L) with the law's integrators of the wheel positions after its
     states (tipbot_fw.kalman, "Integral action"): z_k = z_{k-1} + ts d^_k, so A's and B's rows of
     z are ts times d's (the prediction d-_k), L's ts times d's (the update to d^_k), C blind to z."""
-    n, nz = aa.shape[0], len(INTEGRAL_NAMES)
-    a = np.zeros((n + nz, n + nz))
-    a[:n, :n] = aa
-    a[n:, :n] = ts_s * aa[0:2]
-    a[n:, n:] = np.eye(nz)
-    b = np.vstack([ba, ts_s * ba[0:2]])
-    c = np.hstack([ca, np.zeros((ca.shape[0], nz))])
-    l_full = np.vstack([gain, ts_s * gain[0:2]])
-    return a, b, c, l_full
+    a, b = design.integrator_model(aa, ba, ts_s)         # the LQR's model with its integrators
+    c = np.hstack([ca, np.zeros((ca.shape[0], len(INTEGRATOR_NAMES)))])
+    return a, b, c, design.integrator_model(aa, gain, ts_s)[1]
 
 
 @dataclasses.dataclass(frozen=True)
