@@ -13,11 +13,11 @@ from hostsim.world.fake_ev3 import FakeEV3
 from tipbot_fw import cli, kalman, pathfollow
 from tipbot_fw.config import load_config
 from tipbot_fw.course import CourseError, parse_course, read_course
-from tipbot_fw.drive import course_plan, plan_for, transition_s
+from tipbot_fw.drive import course_plan, transition_s
 from tipbot_fw.gains import load_gains
 from tipbot_fw.kalman import KalmanCore, N_U
 from tipbot_fw.logfile import read_log
-from tipbot_fw.pathfollow import CourseFollower
+from tipbot_fw.pathfollow import follow_course
 
 LIMITS = {'speed_mps': 0.25, 'accel_mps2': 0.6, 'jerk_mps3': 3.0, 'yaw_rate_dps': 100.0,
           'yaw_accel_dps2': 300.0, 'yaw_jerk_dps3': 1500.0}
@@ -70,7 +70,7 @@ def test_a_stall_moves_the_plan_on_by_its_periods(physical):
     # the course keeps to the clock: a stall's periods are skipped in its rows (the deque's, and
     # beyond them its follower's), as the ticks they were for passed
     (a, b), buf = core_pair(physical)
-    followers = [follower_of(physical, c, [(0.2, 0.0, 2.0)]) for c in (a, b)]
+    followers = [follow_course(physical, c, [(0.2, 0.0, 2.0)]) for c in (a, b)]
     for _ in range(100):
         step_followed(a, followers[0], buf)
     for _ in range(40):
@@ -88,14 +88,6 @@ def test_a_stall_moves_the_plan_on_by_its_periods(physical):
     for _ in range(kalman.LIVE_KEEP_ROWS):
         step_followed(b, followers[1], buf)
     assert b.reference()[2:] == [0.0] * 4 and b.reference()[0] > 0.3
-
-
-def follower_of(gains, core, course):
-    ref = gains.kalman.reference
-    f = CourseFollower(plan_for(gains, core, course), core, ref.track_m, ref.limits['speed_mps'], gains.ts_s)
-    f.fill()
-    core.set_live(f.rows)
-    return f
 
 
 def step_followed(core, follower, buf, fill_first=False):

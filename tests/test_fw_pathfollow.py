@@ -8,7 +8,6 @@ import pytest
 import fw_support as S
 from conftest import PHYSICAL_GAINS
 from tipbot_fw import pathfollow as pf
-from tipbot_fw.drive import plan_for
 from tipbot_fw.gains import load_gains
 from tipbot_fw.kalman import REF, KalmanCore
 
@@ -37,9 +36,7 @@ def core_and_follower(gains, course):
     core = KalmanCore(gains, S.fw_config())
     core.set_gyro_bias(0.0)
     core.set_battery(8.0)
-    ref = gains.kalman.reference
-    f = pf.CourseFollower(plan_for(gains, core, course), core, ref.track_m, ref.limits['speed_mps'], gains.ts_s)
-    return core, f
+    return core, pf.follow_course(gains, core, course)
 
 
 def test_followed_exactly_the_rows_are_the_courses_own(physical):

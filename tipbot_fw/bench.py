@@ -43,9 +43,9 @@ from tipbot_fw.config import defaults
 from tipbot_fw.core import make_core
 from tipbot_fw.cues import OwnerCues
 from tipbot_fw.devices import MemoryDevices
-from tipbot_fw.drive import drive_problem, plan_for
-from tipbot_fw.pathfollow import CourseFollower
-from tipbot_fw.remote import LivePlan, remote_side
+from tipbot_fw.drive import drive_problem
+from tipbot_fw.pathfollow import follow_course
+from tipbot_fw.remote import live_plan, remote_side
 from tipbot_fw.gains import ACTUATED_INPUTS, N_INPUTS, UNUSED_INPUT, gains_from_dict, load_gains
 from tipbot_fw.loop import ControlLoop
 from tipbot_fw.plausibility import EncoderBound
@@ -220,19 +220,12 @@ def run_memory(n_ticks, gains=None, bare=False, sender=None, whole=False, drive=
     core.set_gyro_bias(0.0)
     follower = live = None
     if remote:
-        ref = gains.kalman.reference
-        live = LivePlan(ref.limits, ref.track_m, gains.ts_s, core.ref_lsb, core.ref_pos_top)
-        live.fill()
-        core.set_live(live.rows)
+        live = live_plan(gains, core)
     elif drive:
         # the same plan whatever n_ticks (tools/tick-cost subtracts a run of 0 ticks: making the
         # plan is start-up, not a tick's cost); a longer run holds its last row. Followed as a run
         # follows it: its rows made in the slack, corrected from the pose (tipbot_fw.pathfollow)
-        ref = gains.kalman.reference
-        follower = CourseFollower(plan_for(gains, core, BENCH_SEGMENT * BENCH_REPEATS), core, ref.track_m,
-                                  ref.limits['speed_mps'], gains.ts_s)
-        follower.fill(ahead=None if follow else n_ticks + 2)
-        core.set_live(follower.rows)
+        follower = follow_course(gains, core, BENCH_SEGMENT * BENCH_REPEATS, None if follow else n_ticks + 2)
     extra = {}
     writer = None
     if bare:

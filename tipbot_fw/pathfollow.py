@@ -97,6 +97,19 @@ def _slew(value, target, step):
     return value + max(-step, min(step, target - value))
 
 
+def follow_course(gains, core, course, ahead=None):
+    """A Kalman core (with these gains) set to drive `course` [(speed_mps, yaw_rate_rad_s,
+    duration_s)]: its plan made (tipbot_fw.drive.plan_for), the first rows filled (`ahead` of
+    them, default LOOKAHEAD_TICKS) and handed to the core. -> the CourseFollower, whose side()
+    the loop's slack runs."""
+    from tipbot_fw.drive import plan_for
+    ref = gains.kalman.reference
+    follower = CourseFollower(plan_for(gains, core, course), core, ref.track_m, ref.limits['speed_mps'], gains.ts_s)
+    follower.fill(ahead)
+    core.set_live(follower.rows)
+    return follower
+
+
 class CourseFollower(object):
     """The rows of a course's plan (bytes, tipbot_fw.drive.course_plan) for a Kalman core, with the
     module docstring's offsets; `rows` is the deque KalmanCore.set_live takes."""

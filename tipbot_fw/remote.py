@@ -185,6 +185,16 @@ class LivePlan(object):
         self.made += max(n, 0)
 
 
+def live_plan(gains, core):
+    """A Kalman core (with these gains) set to drive by a remote: -> its LivePlan, filled and
+    handed to the core, whose rows remote_side() makes in the loop's slack."""
+    ref = gains.kalman.reference
+    plan = LivePlan(ref.limits, ref.track_m, gains.ts_s, core.ref_lsb, core.ref_pos_top)
+    plan.fill()
+    core.set_live(plan.rows)
+    return plan
+
+
 def remote_side(receiver, plan, period_s):
     """The side task: the newest command, then the rows ahead; called every tick it can be."""
     def task(k):

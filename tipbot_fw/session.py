@@ -120,20 +120,12 @@ def run_session(devices, gains, config, clock, log_path=None, duration_s=None,
         core = run['core'] = make_core(gains, config, devices.counts_per_rot, layout)
         follower = None
         if course is not None:      # before the calibration: nothing is watched or driven yet
-            from tipbot_fw.drive import plan_for       # here: a run that stands keeps it out of memory
-            from tipbot_fw.pathfollow import CourseFollower
-            ref = gains.kalman.reference
-            follower = CourseFollower(plan_for(gains, core, course), core, ref.track_m, ref.limits['speed_mps'],
-                                      gains.ts_s)
-            follower.fill()
-            core.set_live(follower.rows)
+            from tipbot_fw.pathfollow import follow_course  # here: a run that stands keeps it out of memory
+            follower = follow_course(gains, core, course)
         live = None
         if remote is not None:
-            from tipbot_fw.remote import LivePlan, remote_side
-            ref = gains.kalman.reference
-            live = LivePlan(ref.limits, ref.track_m, gains.ts_s, core.ref_lsb, core.ref_pos_top)
-            live.fill()
-            core.set_live(live.rows)
+            from tipbot_fw.remote import live_plan, remote_side
+            live = live_plan(gains, core)
         try:
             bv = devices.read_battery_v()
         except (OSError, ValueError) as e:
