@@ -14,7 +14,7 @@ datagram.
 import numpy as np
 
 from tipbot_fw import logfile
-from tipbot_fw.core import make_core
+from tipbot_fw.core import make_core, row_layout
 from tipbot_fw.gains import ACTUATED_INPUTS
 from tipbot_fw.kalman import wheel_m_per_count
 
@@ -104,7 +104,7 @@ def _logged_layout(header, layout):
 
 def what_if_header(header, gains):
     """The header of rows that replay() made with other gains (their core's columns)."""
-    layout = core_from_header(header, gains, False).rows
+    layout = row_layout(gains, header['config'])
     return dict(header, columns=logfile.columns_header(layout.columns), state_names=layout.header().get(
         'state_names', header.get('state_names')))
 
