@@ -556,8 +556,7 @@ class KalmanCore(object):
         """x^_k after the last tick (SI floats): xi plus R_w times the wheel angles."""
         n = self.n
         xi = [int(v) * l for v, l in zip(self.v[N_U:N_U + n], self.state_lsb)]
-        for i in (0, 1):
-            xi[i] += self.wheel_m[i] * int(self.v[N_U + n + 2 + i])
+        xi[0:2] = self.wheel_positions()
         return xi
 
     def wheel_positions(self):
