@@ -306,7 +306,8 @@ def test_the_integrators_take_out_an_offset_the_filter_cannot_see():
     assert ends['integral'] < 0.2 * ends['proportional'] and ends['integral'] < 0.005
 
 
-def test_the_integrators_stay_within_their_authority_when_the_wheels_are_held(tmp_path):
+@pytest.mark.parametrize('battery_period_s', [1.0, 5.0])     # the wind-down's own second, whatever the battery's
+def test_the_integrators_stay_within_their_authority_when_the_wheels_are_held(tmp_path, battery_period_s):
     # the wheels pushed 30 cm ahead of their zero and held there (a hand, a wall): without a limit
     # the integrators would reach 2 m s in 8 s; the loop keeps them within kalman.integral.limit_m_s
     # once a second (outside the tick), the log flags it and the replay does the same to the bit
@@ -321,7 +322,8 @@ def test_the_integrators_stay_within_their_authority_when_the_wheels_are_held(tm
         return (c, c, 0, 0), (0, 0)
     dev = MemoryDevices(source=source)
     log = str(tmp_path / 'held.log')
-    code, header = run_session(dev, gains, S.fw_config(), VirtualClock(), log_path=log, duration_s=8.0,
+    code, header = run_session(dev, gains, S.fw_config(battery_period_s=battery_period_s), VirtualClock(),
+                               log_path=log, duration_s=8.0,
                                say=lambda m: None, cues=OwnerCues(streams=()))
     assert code == 0
     head, rows = logfile.read_log(log)

@@ -60,6 +60,10 @@ SLACK_FRACTION = 0.3
 # an owner's reaction time to a light or a tone (about 0.2 s). With the paper's gains only about
 # a quarter of the realistic brick's ticks leave SLACK_S, and cues came up to 0.14 s late.
 SIDE_WAIT_S = 0.05
+# How often the law's integrators are kept within their limit (KalmanCore.wind_down): the
+# fixed-point range of the integrators is what they can gain in this long (tipbot_fw.kalman,
+# "Integral action"), whatever the battery's reading period
+WIND_DOWN_S = 1.0
 
 OVERRUN = logfile.FLAG_BITS['overrun']
 SKIP_SHIFT, SKIP_MAX = logfile.SKIP_SHIFT, logfile.SKIP_MAX
@@ -207,12 +211,14 @@ class ControlLoop(object):
         chunk = log.chunk_rows
         next_flush = chunk
         urgent = log.capacity - chunk
-        next_battery = next_wind = battery_every
+        next_battery = battery_every
+        wind_every = max(1, int(round(WIND_DOWN_S / period)))
+        next_wind = wind_every
         side = self.side
         side_due = 1
         if side is None:
             side, side_due = _NEVER, _NEVER(0)
-        due = min(next_flush, next_battery, side_due)
+        due = min(next_flush, next_battery, side_due, next_wind)
         min_slack = min(SLACK_S, SLACK_FRACTION * period)
         side_wait = max(1, int(round(SIDE_WAIT_S / period)))
         stats.battery_v = check_battery(self.battery_v)
@@ -286,7 +292,7 @@ class ControlLoop(object):
                     if k >= next_wind:      # the integrators' anti-windup, once a second, before the
                         if core.wind_down():        # row it flags can go to the file
                             log.mem[(k - 1) % cap, flags_col] += WOUND_DOWN
-                        next_wind = k - k % battery_every + battery_every
+                        next_wind = k - k % wind_every + wind_every
                     if k >= next_flush and (release - now() > min_slack or k - log.flushed >= urgent):
                         flush(k)                        # whole chunks: the file's unit
                         next_flush = k - k % chunk + chunk
