@@ -135,7 +135,8 @@ def test_inputs_say_when_nothing_saturated_and_the_disturbance_band_is_named(fig
     assert any(line.get_linestyle() == ":" for line in top.get_lines())
     legend = [t.get_text() for t in figures[0].legends[0].get_texts()]
     assert "input disturbance (1, 1 V)" in legend
-    calm = {k: dataclasses.replace(v, u_unsat=v.u.copy()) for k, v in runs.items()}
+    # within the rails, a demand that differs from the input by a duty's rounding is no cut
+    calm = {k: dataclasses.replace(v, u_unsat=0.99 * v.u + 0.02) for k, v in runs.items()}
     plots.inputs(sc, calm, U_MAX_V, "inputs.png")
     assert "no input saturated" in figures[1].axes[0].get_title(loc="left")
     assert not any(line.get_linestyle() == ":" for line in figures[1].axes[0].get_lines())

@@ -257,13 +257,14 @@ def _demand(run, i):
     return None if u is None or not np.isfinite(u[:, i]).any() else u[:, i]
 
 
-def _cut(run, i):
-    """The demand where saturation cut it (NaN elsewhere: where it is the input, the input's line
-    shows it), or None without a demand or a cut."""
+def _cut(run, i, u_max_v):
+    """The demand where saturation cut it: beyond +-u_max_v (NaN elsewhere, where the input's line
+    shows it: a firmware's input differs from its demand by a duty's rounding and the battery's
+    drift, not by saturation), or None without a demand or a cut."""
     d = _demand(run, i)
     if d is None:
         return None
-    cut = np.abs(d - run.u[:, i]) > 1e-9
+    cut = np.abs(d) > u_max_v
     return np.where(cut, d, np.nan) if cut.any() else None
 
 
@@ -277,7 +278,7 @@ def inputs(sc, runs, u_max_v, path):
         for label, run in runs.items():
             st = _style(label)
             ax.plot(run.t_s, run.u[:, i], label=label, **st)
-            cut = _cut(run, i)
+            cut = _cut(run, i, u_max_v)
             if cut is not None:
                 any_cut = True
                 ax.plot(run.t_s, cut, color=st["color"], linestyle=":", linewidth=0.9,
