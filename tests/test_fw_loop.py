@@ -1,16 +1,17 @@
 """tipbot_fw.loop: timing without drift, overrun policy, I/O per tick, gc; lock-step balancing."""
 import gc
+import os
 
 import numpy as np
 import pytest
 
 import fw_support as S
-from tipbot_fw import logfile
+from tipbot_fw import heartbeat, logfile, safety
 from tipbot_fw.clock import VirtualClock
 from tipbot_fw.core import make_core
 from tipbot_fw.devices import MemoryDevices
 from tipbot_fw.loop import SIDE_WAIT_S, ControlLoop
-from tipbot_fw.safety import OverrunLimit
+from tipbot_fw.safety import OverrunLimit, Terminated
 from tipbot_fw.session import run_session
 
 OVERRUN = logfile.FLAG_BITS['overrun']
@@ -224,6 +225,19 @@ def test_a_stall_longer_than_the_longest_ridden_out_stops_the_loop_and_is_counte
         loop.run()
     # the periods the last tick skipped are in the run's count (the log's TAIL)
     assert log.count == 30 and loop.stats.overruns == 1 and loop.stats.skipped_periods == 39
+
+
+def test_back_from_a_stall_the_supervisor_ended_the_run_ends_as_the_supervisors_stall():
+    # the supervisor stopped the motors during the stall and its SIGTERM has not arrived yet: the
+    # loop's own stall stop reports what happened, the watchdog's stop (exit 8), not exit 7
+    words = [0] * 8
+    words[heartbeat.STOPPED], words[heartbeat.MISSED_US] = 1, 180000
+    clock = VirtualClock()
+    loop, _, log = make_loop(clock, dev=slow_ticks(clock, None, from_tick=30, stall_s=0.2011), duration_s=10.0,
+                             heartbeat=heartbeat.Heartbeat(words, supervisor_pid=os.getppid()), max_stall_s=0.15)
+    with pytest.raises(Terminated, match='the supervisor saw no heartbeat for 180 ms') as e:
+        loop.run()
+    assert e.value.reason == 'watchdog' and e.value.exit_code == safety.EXIT_WATCHDOG and log.count == 30
 
 
 def test_lost_time_leaves_the_window():

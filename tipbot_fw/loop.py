@@ -49,7 +49,7 @@ from tipbot_fw.heartbeat import NOT_SUPERVISED
 from tipbot_fw.realtime import ask_fifo
 from tipbot_fw.plausibility import GYRO_MAX_DPS, EncoderBound, check_battery
 from tipbot_fw.config import MAX_STALL_S
-from tipbot_fw.safety import DeviceFailure, FallDetected, JointLimit, OverrunLimit, Terminated
+from tipbot_fw.safety import DeviceFailure, FallDetected, JointLimit, OverrunLimit, Terminated, watchdog_stop
 
 # What a tick must leave before the next release for the work between ticks (a chunk of log rows
 # is a copy, a CRC-32 and a pwrite; the battery one sysfs read, 0.3-0.45 ms on the brick), or
@@ -166,7 +166,14 @@ class ControlLoop(object):
         raise JointLimit('joint limit: th2 = {:.3f} rad, th3 = {:.3f} rad (limits {}, {}) at tick {}'.format(
             th2, th3, lim2, lim3, k))
 
+    def _stopped_by_supervisor(self):
+        # back from a stall the supervisor ended (motors stopped), before its SIGTERM arrived
+        stopped = watchdog_stop(self.heartbeat)
+        if stopped is not None:
+            raise stopped
+
     def _behind(self, k, lost_s, late_s, longest_s):
+        self._stopped_by_supervisor()
         skipped = int(round((lost_s - late_s) / self.period_s)) + int(late_s / self.period_s)
         raise OverrunLimit('the loop is behind: {:.1f} ms lost within {} s besides its longest hold of {:.1f} ms '
                            '(limits.max_lost_s = {} s within limits.overrun_window_s), {} periods skipped, tick {} '
@@ -174,6 +181,7 @@ class ControlLoop(object):
                                                          longest_s * 1e3, self.max_lost_s, skipped, k, late_s * 1e3))
 
     def _stalled(self, k, late_s, missed):
+        self._stopped_by_supervisor()
         raise OverrunLimit('a stall of {:.1f} ms after tick {} ({} periods skipped), longer than limits.max_stall_s = '
                            '{} s: the longest the robot is designed to ride out'.format(
                                late_s * 1e3, k, missed, self.max_stall_s))

@@ -150,6 +150,17 @@ def outcome(error):
     return reason, code, msg
 
 
+def watchdog_stop(hbt):
+    """-> the Terminated ('watchdog', exit 8) that ends a run whose motors the supervisor stopped
+    after a stall, or None. The controller, back from the stall, may find this before the
+    supervisor's SIGTERM arrives (its own stall limit, its own overrun stop): the run still ends as
+    what it was, a stall the supervisor stopped."""
+    if hbt is None or hbt.stopped_by_supervisor() is None:
+        return None
+    return Terminated('the supervisor saw no heartbeat for {:.0f} ms (the controller stalled) and '
+                      'stopped the motors'.format(1e3 * hbt.stopped_by_supervisor()), 'watchdog', EXIT_WATCHDOG)
+
+
 class SignalGuard(object):
     """Every catchable termination signal -> an exception, raised at most ONCE: SIGINT ->
     KeyboardInterrupt, the others -> Terminated (the message names the signal).
@@ -183,10 +194,9 @@ class SignalGuard(object):
     def exception(self, signum):
         """The exception that stands for signum."""
         hbt = self.heartbeat
-        if hbt is not None and hbt.stopped_by_supervisor() is not None:
-            return Terminated('the supervisor saw no heartbeat for {:.0f} ms (the controller stalled) and '
-                              'stopped the motors'.format(1e3 * hbt.stopped_by_supervisor()),
-                              'watchdog', EXIT_WATCHDOG)
+        stopped = watchdog_stop(hbt)
+        if stopped is not None:
+            return stopped
         if hbt is not None and not hbt.supervisor_alive():
             return Terminated('the supervisor (pid {}) died: the controller stopped the motors itself'.format(
                 hbt.supervisor_pid), 'supervisor_gone')
