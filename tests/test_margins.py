@@ -3,7 +3,7 @@ import dataclasses
 
 import pytest
 
-from hostsim.sim.scenario import Brick, load_scenario
+from hostsim.sim.scenario import Brick, floor_angle_rad, load_scenario
 from hostsim.studies import margins
 from hostsim.studies.report import brick_table, margins_section
 
@@ -23,6 +23,16 @@ def test_each_margin_moves_only_its_own_effect():
     assert sc.brick.single_stall_s == pytest.approx(0.08) and sc.brick.timed and sc.brick.tacho_access_s == (0, 0)
     # the firmware's own hold lifted to its bound for the search; the start pose kept
     assert sc.firmware_config["limits"]["max_stall_s"] == 0.5 and "start_pose_rad" in sc.firmware_config
+    sc = margins.margin_scenario(base, "payload", 150.0, 0.005)
+    assert (sc.payload.mass_kg, sc.payload.distance_m, sc.payload.t_off_s) == (0.15, 0.1, None) and sc.brick.ideal
+    assert margins.margin_scenario(base, "payload", 0.0, 0.005).payload is None
+    # on a slope the robot is released as far from the vertical as on the flat (th1 is from the
+    # floor's normal), and the firmware is told the same start pose
+    for key, sign in (("slope_up", 1), ("slope_down", -1)):
+        sc = margins.margin_scenario(base, key, 8.0, 0.005)
+        assert sc.slope.angle_deg == 8.0 * sign and sc.slope.ramp_start_m is None
+        assert sc.x0_si[2] - floor_angle_rad(sc) == pytest.approx(base.x0_si[2])
+        assert sc.firmware_config == base.firmware_config
 
 
 def test_one_stall_holds_the_duties_and_the_robot_rides_it_out(monkeypatch):
@@ -57,6 +67,23 @@ def test_bisection_finds_the_push_the_robot_takes_and_the_report_shows_it(monkey
     assert all(len(v.strip("+-")) <= 5 for v in cells["push"].split(" (")[1].rstrip(")").split(", "))   # 3 digits
     text = "\n".join(margins_section(res))
     assert "push on link 3 (N s)" in text and "robustness/margins.png" in text
+
+
+@pytest.mark.slow
+def test_bisection_finds_the_payload_and_the_slope_the_robot_takes():
+    res = margins.run_margins(gains_paths=("gains/physical.json",), coarse=True, ablation_gains=(), jobs=1,
+                              effects=("payload", "slope_down"), duration_s=4.0)
+    rows = {r["effect"]: r for r in res["margins"]}
+    for r in rows.values():
+        ok = [v for v, good in r["trials"] if good]
+        bad = [v for v, good in r["trials"] if not good]
+        assert ok[0] == 0.0 and bad and r["margin"] == max(ok) < min(bad) <= r["margin"] + r["tol"]
+    # inside the searches' ends (1 kg at 10 cm is 1 N m: five times what the joint motors hold;
+    # 45 degrees), beyond a few grams and degrees
+    assert 30 <= rows["payload"]["margin"] < 900 and 5 <= rows["slope_down"]["margin"] < 44
+    cells = margins.margin_cells(res, "physical")
+    assert cells["payload"] == "%.3g" % rows["payload"]["margin"] and cells["slope_up"] == "-"
+    assert "payload at the top of link 3 (g)" in margins.margin_table(res)
 
 
 def test_ablation_rows_switch_the_effects_as_named():

@@ -7,6 +7,8 @@ import math
 
 import numpy as np
 
+from hostsim.sim.scenario import floor_angle_rad
+from hostsim.world.load import equilibrium_lean_rad
 from tipbot_fw.gains import ACTUATED_INPUTS
 from tipbot_fw.logfile import FLAG_BITS, SATURATION_BITS
 
@@ -80,7 +82,13 @@ def compute(run, sc, u_max_v):
     }
     late = t >= min(JOINT_SETTLE_S, t[-1])
     m["joint_offset_rad"] = [_f(v) for v in np.max(np.abs(x[late][:, 3:5]), axis=0)]
-    m["upright"] = bool(m["completed"] and np.all(np.abs(th1) < UPRIGHT_LIMIT_RAD))
+    floor_rad = floor_angle_rad(sc)
+    m["upright"] = bool(m["completed"] and np.all(np.abs(th1 - floor_rad) < UPRIGHT_LIMIT_RAD))
+    if floor_rad:
+        # on a slope: link 1's lean from the vertical, and the lean it stands at with the joints
+        # straight (hostsim.world.load.equilibrium_lean_rad)
+        m["lean_from_vertical_rad"] = _f(np.mean(th1[late] - floor_rad))
+        m["equilibrium_lean_rad"] = _f(equilibrium_lean_rad(_end_params(sc), floor_rad))
     m["rms_u_v"] = [_f(v) for v in np.sqrt(np.mean(u[:, ACTUATED_INPUTS] ** 2, axis=0))]
     steady = t >= min(TRANSIENT_S, t[-1])
     m["rms_th1_after_transient_rad"] = _f(np.sqrt(np.mean(th1[steady] ** 2)))
@@ -110,6 +118,15 @@ def compute(run, sc, u_max_v):
     if getattr(sc, "course", None) and run.header is not None and "course" in run.header:
         m["tracking"] = course_tracking(run, sc)
     return m
+
+
+def _end_params(sc):
+    """The robot's parameters at the end of a scenario's run (a payload still on included)."""
+    from hostsim.model.params import scaled_params
+    from hostsim.world.load import payload_params
+    p = scaled_params(sc.param_scale)
+    pl = sc.payload
+    return p if pl is None or pl.t_off_s is not None else payload_params(p, pl.mass_kg, pl.distance_m)
 
 
 def course_tracking(run, sc):

@@ -31,6 +31,14 @@ scenarios/brick_realistic.json; docs/architecture.md describes the models).
 pose it is told, which the plant's x0 need not match). What the firmware will be told (x0's
 pose unless overridden, then these fields) is checked when the scenario is read, by the
 configuration's own bounds (tipbot_fw.config), and named ``firmware_config.<field>``.
+
+``payload`` (nonlinear and firmware modes): a point mass on link 3, ``mass_kg`` (at most 1)
+``distance_m`` from its joint (at most 0.1, the link's top), from ``t_on_s`` (default 0) until
+``t_off_s`` (default: the end). ``slope``: the floor rising ``angle_deg`` forward (negative:
+falling; at most 45), everywhere, or only between ``ramp_start_m`` and ``ramp_end_m`` along the
+floor from where the axle starts (both or neither). The plant's angles are then measured from
+the floor's normal: a robot released upright on a slope starts at th1 = the slope's angle
+(hostsim.world.load; the firmware's start pose is absolute, as its gyro is).
 """
 import dataclasses
 import math
@@ -137,10 +145,12 @@ class Slope:
 
 # Bounds: a kilogram on link 3 is most of the robot's own 1.3 kg (the Medium motor holds
 # about 0.12 N m stalled: 1 kg at 10 cm is 1 N m); link 3 is 2 l3 = 10 cm long (params);
-# 30 degrees is beyond any ramp a 3.4 cm wheel climbs at 7.6 V (margins search below it).
+# 45 degrees: the wheels' motors hold the robot on any slope at stall (0.49 N m at 7.6 V
+# against R_w m g sin(alpha), 0.30 N m at 45 degrees), but no tyre does (the plant's wheels
+# do not slip: rubber on a floor grips up to tan(alpha) = mu, about 0.6-1, 30-45 degrees).
 MAX_PAYLOAD_KG = 1.0
 MAX_PAYLOAD_DISTANCE_M = 0.1
-MAX_SLOPE_DEG = 30.0
+MAX_SLOPE_DEG = 45.0
 MAX_RAMP_POSITION_M = 10.0
 
 
@@ -570,6 +580,13 @@ def disturbance_at(sc, t_s):
         if d.t_start_s <= t_s < d.t_end_s:
             w = [a + b for a, b in zip(w, d.w_v)]
     return w
+
+
+def floor_angle_rad(sc):
+    """The floor's angle under a scenario's robot where it is the same everywhere (a constant
+    slope; 0 on the flat and on a ramp's profile): link 1's th1 is measured from the floor's
+    normal, its lean from the vertical is th1 less this (hostsim.world.load)."""
+    return math.radians(sc.slope.angle_deg) if sc.slope is not None and sc.slope.ramp_start_m is None else 0.0
 
 
 def scenario_load(sc, model, x0_model):

@@ -22,7 +22,13 @@ as the effect grows. Effects (MARGINS):
 - single stall (ms): one stall of the whole brick that long at t = 10 s (at a random phase of
   the period), the motors held at their last duties as the H-bridges hold them; the firmware's
   own limit on it (limits.max_stall_s, which this row is what to choose it from) lifted to its
-  bound for the search.
+  bound for the search;
+- payload (g): a point mass at the top of link 3 (PAYLOAD_AT_M from its joint) from the start
+  (issue 22; hostsim.world.load);
+- slope up, slope down (deg): a floor rising (falling) that much forward everywhere, the robot
+  released 0.017 rad from the vertical as on the flat (its th1, from the floor's normal, the
+  slope more); balancing judged on link 1's lean from the vertical. The plant's wheels do not
+  slip: a tyre holds only up to tan(alpha) = mu (hostsim.sim.scenario.MAX_SLOPE_DEG).
 
 **Ablation.** The realistic brick itself (every effect on), as the firmware is (it stops when
 more than ``limits.max_lost_s`` is lost to late ticks within ``limits.overrun_window_s``), and
@@ -34,6 +40,7 @@ over ``--seeds`` seeds (the scenario's seed and the next ones: sensor noise, tim
 import argparse
 import dataclasses
 import json
+import math
 import os
 import time
 
@@ -41,6 +48,7 @@ import hostsim
 import numpy as np
 
 from hostsim.paths import REPO_ROOT, out_dir
+from hostsim.sim.scenario import MAX_SLOPE_DEG
 from tipbot_fw.config import MAX_LOST_S, MAX_STALL_BOUNDS_S
 
 DEFAULT_GAINS = ("gains/paper.json", "gains/physical.json")
@@ -49,6 +57,7 @@ PUSH_AT_S = 10.0
 FREEZE_INTERVAL_S = 5.0
 MEDIUM_BACKLASH_RATIO = 0.5 / 3.0
 MEDIUM_DEADBAND_RATIO = 10.0 / 4.0
+PAYLOAD_AT_M = 0.1        # the top of link 3 (2 l3 = 10 cm): where a load tips it most
 
 
 @dataclasses.dataclass(frozen=True)
@@ -74,6 +83,9 @@ MARGINS = (
     Margin("push", "push on link 3", "N s", "-", None, 2.0, 0.01, (1, -1)),
     Margin("gyro_freeze", "gyro freeze", "ms", "42, one in 20 s", 42.0, 1000.0, 10.0),
     Margin("single_stall", "single stall", "ms", "10-30, one in 20 s", 30.0, 500.0, 5.0),
+    Margin("payload", "payload at the top of link 3", "g", "- (issue 22: 100)", None, 1000.0, 10.0),
+    Margin("slope_up", "slope up", "deg", "- (issue 22: 5)", None, MAX_SLOPE_DEG, 0.25),
+    Margin("slope_down", "slope down", "deg", "- (issue 22: 5)", None, MAX_SLOPE_DEG, 0.25),
 )
 COARSE = 4.0      # make sim: tolerances x this
 # The firmware's loosest overrun stop (the largest lost time, in the shortest window that allows
@@ -99,7 +111,15 @@ GROUPS = (
 
 def margin_scenario(base, key, value, ts_s):
     """base (every brick effect off) with one effect at value (signed where it has a sign)."""
-    from hostsim.sim.scenario import Brick, Push
+    from hostsim.sim.scenario import Brick, Payload, Push, Slope
+
+    if key == "payload":
+        return dataclasses.replace(base, payload=Payload(value / 1000.0, PAYLOAD_AT_M) if value else None)
+    if key in ("slope_up", "slope_down"):
+        angle = value if key == "slope_up" else -value
+        x0 = list(base.x0_si)
+        x0[2] += math.radians(angle)
+        return dataclasses.replace(base, slope=Slope(angle) if angle else None, x0_si=tuple(x0))
 
     if key == "backlash":
         return dataclasses.replace(base, brick=Brick(backlash_deg=(value,) * 3 + (value * MEDIUM_BACKLASH_RATIO,)))
@@ -123,10 +143,12 @@ def margin_scenario(base, key, value, ts_s):
     raise KeyError(key)
 
 
-def balances(run):
+def balances(run, floor_rad=0.0):
+    """Completed with link 1's lean from the vertical within 30 degrees, ending below 0.1 rad
+    (floor_rad: floor_angle_rad of the run's scenario)."""
     from hostsim.studies.montecarlo import FINAL_TH1_RAD
     from hostsim.sim.metrics import UPRIGHT_LIMIT_RAD
-    th1 = np.abs(run.x[:, 2])
+    th1 = np.abs(run.x[:, 2] - floor_rad)
     return bool(run.completed and np.all(th1 < UPRIGHT_LIMIT_RAD) and th1[-1] < FINAL_TH1_RAD)
 
 
@@ -149,8 +171,11 @@ def bisect_margin(task):
     ts_s = _gains(gains_path)["ts_s"]
     trials = []
 
+    from hostsim.sim.scenario import floor_angle_rad
+
     def ok(value):
-        r = balances(_run(margin_scenario(base, m.key, sign * value, ts_s), gains_path))
+        sc = margin_scenario(base, m.key, sign * value, ts_s)
+        r = balances(_run(sc, gains_path), floor_angle_rad(sc))
         trials.append([value, r])
         return r
 

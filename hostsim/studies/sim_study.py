@@ -40,16 +40,23 @@ def ensure_gains(say):
 
 def load_table(docs):
     """One line per run of the payload and slope scenarios: up, when it stopped, the joints'
-    largest offset from their reference after the first 5 s, the share of ticks saturated."""
-    rows = ["| scenario | run | upright | stopped at s | max abs(th2 - ref) rad | max abs(th3 - ref) rad | saturated % |",
-            "|---|---|---|---|---|---|---|"]
+    largest offset from their reference after the first 5 s, the share of ticks saturated, the
+    strongest line above 1 Hz in each joint (hunting), and on a constant slope link 1's lean
+    from the vertical (mean after 5 s) beside the one the robot stands at with straight joints."""
+    rows = ["| scenario | run | upright | stopped at s | max abs(th2 - ref) rad | max abs(th3 - ref) rad | saturated % "
+            "| th2, th3 line > 1 Hz mrad | lean rad (straight joints) |",
+            "|---|---|---|---|---|---|---|---|---|"]
     for doc in docs:
         for label, m in doc["runs"].items():
             off = m.get("joint_offset_rad") or [None, None]
-            rows.append("| %s | %s | %s | %s | %s | %s | %.1f |" % (
+            osc = m.get("oscillation_above_1hz") or {}
+            lines = ", ".join("-" if osc.get(j) is None else "%.1f" % (1000 * osc[j]["amplitude"]) for j in ("th2", "th3"))
+            lean = "-" if m.get("equilibrium_lean_rad") is None else "%.4f (%.4f)" % (
+                m["lean_from_vertical_rad"], m["equilibrium_lean_rad"])
+            rows.append("| %s | %s | %s | %s | %s | %s | %.1f | %s | %s |" % (
                 doc["scenario"], label, "yes" if m["upright"] else "no (%s)" % m["stop_reason"],
                 "-" if m["completed"] else "%.1f" % m["duration_s"],
-                *("-" if v is None else "%.3f" % v for v in off), 100 * (m["saturated_fraction"] or 0.0)))
+                *("-" if v is None else "%.3f" % v for v in off), 100 * (m["saturated_fraction"] or 0.0), lines, lean))
     return "\n".join(rows)
 
 

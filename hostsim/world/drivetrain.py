@@ -146,6 +146,7 @@ class DrivetrainPlant(Plant):
         while remaining > 1e-12:
             if self.load is not None:
                 self._load_due(t)
+                x = self.load.reframe(x)
             h = min(self.dt_s, remaining)
             x = self._step(x, u, h)
             remaining -= h

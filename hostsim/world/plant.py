@@ -161,8 +161,8 @@ class Plant:
         return self.x
 
     def _advance_loaded(self, u, duration_s, f_ext):
-        """advance() with self.load: its parameter steps at their times, its force at every
-        evaluation (hostsim.world.load)."""
+        """advance() with self.load: its parameter steps at their times, the floor's frame at
+        each step's start, its force at every evaluation (hostsim.world.load)."""
         ext, _ = fastdyn.compile_model_ext(self.model)
         zeros_m = [0.0] * 15
         load = self.load
@@ -179,6 +179,7 @@ class Plant:
         heun = self.method == "heun"
         while remaining > 1e-12:
             self._load_due(t)
+            x = load.reframe(x)
             h = min(self.dt_s, remaining)
             k1 = deriv(x)
             if heun:
