@@ -12,18 +12,18 @@ the axle, A = (M + 2 m_w) R_w^2 + 2 J_w the wheels' share; hostsim.model.bodies)
 
     d/dt [A (psi' + th') + Mh R_w cos th (psi' + 2 th') + I_a th'] = Mh (g sin th - R_w sin th th' (psi' + th'))
 
-Integrated twice from the release t_r (at rest) and divided by Mh, with r = I_a / Mh,
-e = A / Mh and th = th_measured + delta (the tilt at the start pose is not known to a degree):
+Divided by Mh, with r = I_a / Mh and e = A / Mh (small: A is about 2 % of the robot's
+inertia about the contact point, taken from the model), it leaves one unknown of the robot, the
+ratio I_roll / Mh = r + 2 R_w + e, and the fall pole sqrt(g Mh / I_roll) follows:
 
-    G(t) - R_w (C(t) + 2 (sin th - sin th_r)) - e (dpsi + dth) = r dth
+    th'' (ratio - 2 R_w (1 - cos th)) = g sin th + R_w sin th th'^2 - (e + R_w cos th) psi''
 
-where G is the double integral of the right-hand side and C(t) = integral of cos th dpsi. Linear
-in r and sin(delta) (fall_fit's _fall_regression); the release, which the angle's whole degrees
-show late, is searched tick by tick. Only first derivatives appear, and only in a small
-correction (the tilt rate from the gyro's rate reading); the angles come from the gyro's own
-integral (its angle reading, bias removed) and the encoders. e is small (A is about 2 % of the
-robot's inertia about the contact point) and taken from the model. The fall pole,
-sqrt(g Mh / I_roll) with I_roll / Mh = r + 2 R_w + e, follows.
+``fit_fall`` simulates that from the release (at rest) and fits the measured tilt (the gyro's
+own integral, its angle reading, bias removed; a little of its rate readings) by Gauss-Newton:
+the ratio, the release time (the angle's whole degrees show it late), the true tilt where the
+hand held it (an owner's upright is a degree or two off the start pose) and the gyro's
+remaining bias error (its calibration reads whole deg/s, or steps of them). psi'' comes from a
+cubic through the wheel angles: a correction (its coefficient is a tenth of the tilt's).
 
 **A joint's swing.** Link 1 held, the joint's link (with what it carries, held straight) turns
 about the joint:
@@ -54,7 +54,7 @@ CORRELATION_S = 0.05
 # and ends at FALL_END_RAD (sin th and the rigid body hold to there).
 FALL_START_RAD = 1.5 * DEG
 FALL_END_RAD = 0.45
-# The swing's filter: above the swing's 2 Hz, below the 1-count steps' noise.
+# The swing's filter: above the swing's 1.2 Hz, below the 1-count steps' noise.
 SWING_FILTER_HZ = 2.0
 SWING_SKIP_S = 0.25     # the filter's start-up transient
 # The duties' effective delay after the tick's read, searched: half a tick of zero-order hold
@@ -102,39 +102,9 @@ def signals(header, rows):
                 ref=col('ref_rad'))
 
 
-def _cumtrapz(y, t):
-    out = np.zeros(len(y))
-    out[1:] = np.cumsum(0.5 * (y[1:] + y[:-1]) * np.diff(t))
-    return out
-
-
 def _inflation(t):
     dt = float(np.median(np.diff(t))) if len(t) > 1 else 1.0
     return math.sqrt(max(1.0, CORRELATION_S / dt))
-
-
-def _rate(x, t):
-    """dx/dt by central differences (one-sided at the ends; numpy 1.12's gradient takes no times)."""
-    out = np.zeros(len(x))
-    if len(x) > 2:
-        out[1:-1] = (x[2:] - x[:-2]) / (t[2:] - t[:-2])
-        out[0] = (x[1] - x[0]) / (t[1] - t[0])
-        out[-1] = (x[-1] - x[-2]) / (t[-1] - t[-2])
-    return out
-
-
-def _lstsq(x, y, t):
-    """-> (coefficients, standard errors (inflated), residual rms)."""
-    coef = np.linalg.lstsq(x, y, rcond=-1)[0]
-    res = y - x.dot(coef)
-    dof = max(len(y) - x.shape[1], 1)
-    s2 = float(res.dot(res)) / dof
-    try:
-        cov = np.linalg.inv(x.T.dot(x)) * s2
-        se = np.sqrt(np.abs(np.diag(cov))) * _inflation(t)
-    except np.linalg.LinAlgError:
-        se = np.full(x.shape[1], np.inf)
-    return coef, se, math.sqrt(s2)
 
 
 # Coulomb friction's regressor: the sign of the speed, from the counts over +-this many ticks

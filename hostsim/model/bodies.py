@@ -28,6 +28,8 @@ apart (``link_products``).
 """
 import math
 
+from tipbot_fw import bodyfit
+
 LINKS = (1, 2, 3)
 
 
@@ -64,10 +66,9 @@ def joint_inertias(p):
     return (i_a, b2, b3)
 
 
-def wheel_term(p):
-    """A = (M + 2 m_w) R_w^2 + 2 J_w (kg m^2): what the rolling adds about the contact point."""
-    mass = p["m1_kg"] + p["m2_kg"] + p["m3_kg"] + 2 * p["mw_kg"]
-    return mass * p["rw_m"] ** 2 + 2 * p["jw_kg_m2"]
+# A = (M + 2 m_w) R_w^2 + 2 J_w (kg m^2): what the rolling adds about the contact point (the
+# brick's pre-flight check needs it too)
+wheel_term = bodyfit.wheel_term
 
 
 def rolling_inertia(p):
