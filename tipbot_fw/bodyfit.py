@@ -283,7 +283,8 @@ def _filter(x, t, hz):
 
 def fit_swing(sig, joint, k_v, c, g_m_s2, lever3=None):
     """The swing's fit of ``joint`` (2 or 3) (module docstring) -> dict: inertia I (rotor
-    included), lever a, Coulomb friction, the constant, the backlash's share, their standard
+    included; it may come out at or below the rotor's where friction hides it: the caller drops
+    it then), lever a, Coulomb friction, the constant, the backlash's share, their standard
     errors, the residual rms, the swing's amplitude."""
     t = sig['t']
     theta = sig['th%d' % joint]
@@ -323,9 +324,9 @@ def fit_swing(sig, joint, k_v, c, g_m_s2, lever3=None):
             best = (coef, se, rms, delay)
     coef, se, rms, delay = best
     inertia, lever = float(coef[0]), float(coef[1])
-    if not (inertia > 0 and lever > 0):
-        raise FitError('joint {}: the swing gives a non-physical fit (inertia {:.3g} kg m^2, lever {:.3g} kg m): '
-                       'was link 1 held upright and the link free?'.format(joint, inertia, lever))
+    if not lever > 0:
+        raise FitError('joint {}: the swing gives a non-physical lever ({:.3g} kg m): was link 1 held upright and '
+                       'the link free?'.format(joint, lever))
     return {'joint': joint, 'inertia_kg_m2': inertia, 'inertia_se': float(se[0]), 'lever_kg_m': lever,
             'lever_se': float(se[1]), 'coulomb_nm': float(coef[2]), 'offset_nm': float(coef[3]), 'rms_nm': rms, 'span_rad': span}
 

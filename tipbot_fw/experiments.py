@@ -42,6 +42,7 @@ from tipbot_fw.calibration import calibrate_gyro
 from tipbot_fw.console import say as _say
 from tipbot_fw.heartbeat import NOT_SUPERVISED
 from tipbot_fw.plausibility import check_battery
+from tipbot_fw.session import BeatingClock
 from tipbot_fw.safety import (EXIT_OK, EXIT_ERROR, EXIT_REFUSED, DeviceFailure, JointLimit, LowBattery,
                               SafetyStop, run_guarded, watchdog_stop)
 
@@ -214,7 +215,7 @@ def run_experiment(kind, devices, clock, config, joint=None, log_path=None, say=
                 'go limp (catch the links); calibrating the gyro'.format(
                     joint, centre / DEG, max(a for _, a, _ in segments) / DEG, swing_duration_s(joint)))
         heartbeat.arm()
-        cal = calibrate_gyro(devices, _Beating(clock, heartbeat), PERIOD_S, cal_config)
+        cal = calibrate_gyro(devices, BeatingClock(clock, heartbeat), PERIOD_S, cal_config)
         header['calibration'] = cal.as_dict()
         enc, _ = _read(devices)
         header['zero_counts'] = list(enc)
@@ -246,18 +247,6 @@ def run_experiment(kind, devices, clock, config, joint=None, log_path=None, say=
         return code, header
 
     return run_guarded(body, stop_motors, finish, say, guard)
-
-
-class _Beating(object):
-    """A clock whose sleeps beat the supervisor's heartbeat (as tipbot_fw.session.BeatingClock)."""
-
-    def __init__(self, clock, heartbeat):
-        self.clock, self.heartbeat, self.now, self.k = clock, heartbeat, clock.now, 0
-
-    def sleep_until(self, t):
-        self.k += 1
-        self.heartbeat.beat(self.k)
-        self.clock.sleep_until(t)
 
 
 def _read(devices):
