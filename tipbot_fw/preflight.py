@@ -14,7 +14,7 @@ sees it).
 
 Python 3.5 and numpy 1.12.
 """
-from tipbot_fw import bodyfit, fields, logfile
+from tipbot_fw import fields
 
 QUANTITIES = ('fall_pole_1_s', 'lever2_kg_m', 'lever3_kg_m')
 
@@ -41,9 +41,10 @@ def check_block(f, block):
 
 
 def _read(path, kind):
+    from tipbot_fw import logfile
     try:
         header, rows = logfile.read_log(path)
-    except (OSError, logfile.LogFormatError) as e:
+    except (OSError, ValueError) as e:      # LogFormatError is a ValueError
         raise PreflightError('{}: cannot read: {}'.format(path, e))
     if header.get('kind') != kind:
         raise PreflightError('{}: not a {} log (kind {!r})'.format(path, kind, header.get('kind')))
@@ -55,6 +56,7 @@ def _read(path, kind):
 
 def measure(gains, fall_log, swing_logs=()):
     """Fit the logs -> {quantity: (value, relative standard error, log)}. PreflightError."""
+    from tipbot_fw import bodyfit     # here: a balance run loads the gains (check_block), not the fits
     p = gains.parameters
     block = gains.preflight
     out = {}

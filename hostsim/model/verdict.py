@@ -3,17 +3,17 @@ their robot, how well its parameters are known, and a plain verdict (deploy, or 
 which measurement).
 
 The verdict: **deploy** when the design holds its whole uncertainty set (hostsim.model.kalman,
-with the parameters' spread: hostsim.model.spread) and no parameter the balance depends on is
-known worse than LOOSE_SIGMA; else **measure again**, naming the experiment that measures the
-loosest part (hostsim.model.spread.MEASUREMENT_OF), or the one whose robot the design does not
-hold.
+with the parameters' spread: hostsim.model.spread, which covers what the experiments leave loose:
+the links' own inertias) and the parameters come from the three experiments (the fall and both
+swings, hostsim.model.robotfit); else **measure again**, naming the experiments not done, or the
+one that measures the part of the robot the design does not hold
+(hostsim.model.spread.MEASUREMENT_OF).
 """
 from hostsim.model import bodies, preflight
 from hostsim.model.spread import MEASUREMENT_OF
 
-# A parameter known to within this (one standard deviation, relative) is well measured for a
-# design that holds the robots two of them away.
-LOOSE_SIGMA = 0.15
+# What each experiment's fit is called in the file's uncertainty.measurements, by link
+MEASURED = {"1": "fall_ratio", "2": "lever2", "3": "lever3"}
 KEY_PARAMETERS = ("m1_kg", "m2_kg", "m3_kg", "l1_m", "l2_m", "l3_m", "j1_kg_m2", "j2_kg_m2", "j3_kg_m2")
 
 
@@ -35,18 +35,17 @@ def report(g, spread):
         lines.append("  confidence (one standard deviation, relative): %s" % (sig or "-"))
         for name, m in sorted(spread.measurements.items()):
             lines.append("    %s: %s" % (name, m.get("summary", m) if isinstance(m, dict) else m))
-        loose = [n for n in KEY_PARAMETERS if spread.rel_sigma(n) > LOOSE_SIGMA]
+        loose = [k for k, name in sorted(MEASURED.items()) if name not in spread.measurements]
     if not g.margins.robust:
         where = g.margins.radius_at if g.margins.radius > 0.9995 else g.margins.damping_at
         link = spread.loosest_link(where[3] if isinstance(where[3], str) else None) if spread is not None else None
         what = MEASUREMENT_OF.get(link, "the fall and swing tests (docs/your-robot.md)")
         verdict = ("MEASURE AGAIN: these gains do not hold every robot the parameters allow (%s); measure %s, "
                    "then make gains again" % (", ".join(str(w) for w in where), what))
-    elif loose:
-        links = sorted({n[1] for n in loose})
-        verdict = "MEASURE AGAIN: %s known only to %s; measure %s" % (
-            ", ".join(loose), ", ".join("%.0f %%" % (100 * spread.rel_sigma(n)) for n in loose),
-            " and ".join(MEASUREMENT_OF[k] for k in links))
+    elif spread is None or loose:
+        verdict = "MEASURE: the parameters are %s; run %s, then python -m hostsim fit-robot" % (
+            "not fitted to experiments" if spread is None or len(loose) == 3 else "missing an experiment",
+            " and ".join(MEASUREMENT_OF[k] for k in (loose or sorted(MEASURED))))
     else:
         verdict = ("DEPLOY: the gains hold every robot within the fit's spread; run the pre-flight check on the "
                    "brick first (python3 -m tipbot_fw check --gains gains.json --fall-log LOG)")
