@@ -20,10 +20,11 @@ fits the tilt's growth: the fall pole.
 
 **The joint swing test.** Link 1 held still and upright (on a stand, in a vice, or by a hand
 braced on the table), the other joint held straight by its motor, the joint ``--joint`` follows a
-reference through a PD on its encoder: it leans the link forward (0.15 rad, joint 3 0.2 rad) and
+reference through a PD on its encoder: it leans the link forward (0.15 rad, joint 3 0.12 rad) and
 swings it about there in whole sine cycles (0.3, 0.7 and 1.2 Hz, amplitudes 0.10, 0.08 and 0.05
-rad, joint 3 0.15, 0.10 and 0.06), then back; 0.35 rad off its reference or beyond 0.7 rad it stops (the motor could not hold the link); the gyro watches
-link 1 (a turn faster than 30 deg/s for three ticks stops the test: link 1 was not held). The host fits the joint's equation of motion with the
+rad, the same on joint 3), then back; 0.35 rad off its reference or beyond 0.7 rad it stops (the
+motor could not hold the link); the gyro watches link 1 (a turn faster than 30 deg/s for three
+ticks stops the test: link 1 was not held). The host fits the joint's equation of motion with the
 motor's parameters: its lever (gravity torque) and inertia.
 
 Safety as in every command that drives motors (tipbot_fw.safety.run_guarded): signals become
@@ -74,8 +75,8 @@ RATE_TICKS = 4
 # torque, high ones the inertia. The centre keeps the link leaning one way throughout, so that
 # gravity holds it on one side of its gear's free play (3 deg on a Large motor, which the encoder,
 # on the rotor's side, does not see: a swing through upright crosses it at every turn and reads a
-# lever 15 % too large); the Medium motor of joint 3 holds its link to about 90 deg, and its 10 %
-# duty of friction needs the larger gravity torque beside it.
+# lever 15 % too large). Joint 3 leans less: with it the joint-2 motor must hold links 2 and 3 (a
+# doubled link 3 leaning 0.3 rad took more than its 0.28 N m).
 SWING = {2: (0.15, ((0.3, 0.10, 2), (0.7, 0.08, 3), (1.2, 0.05, 4))),
          3: (0.12, ((0.3, 0.10, 2), (0.7, 0.08, 3), (1.2, 0.05, 4)))}
 # Beyond this the swung link has got away (a joint-2 motor holds the paper's links 2 and 3 only to
