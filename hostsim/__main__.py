@@ -13,6 +13,7 @@ import hostsim
 # verb: (module, one line for the list of verbs)
 COMMANDS = {
     "gains": ("hostsim.model.gains", "design the gains and write gains/<variant>.json (make gains)"),
+    "describe": ("hostsim.model.description", "describe your robot: scale and ruler entries -> a parameters file"),
     "paper-check": ("hostsim.model.paper_check", "the paper variant against Appendix C (make paper-check)"),
     "pd": ("hostsim.model.pd", "the Appendix D PD baseline designed for a gains file"),
     "motor-sim": ("hostsim.world.motor_sim", "a simulated motor behind a fake EV3 (identify logs without a brick)"),
@@ -22,10 +23,12 @@ COMMANDS = {
     "montecarlo": ("hostsim.studies.montecarlo", "Monte Carlo robustness of the firmware in the loop"),
     "roa": ("hostsim.studies.roa", "region of attraction (largest recovered initial angles)"),
     "margins": ("hostsim.studies.margins", "how much of each brick imperfection the robot takes; what each costs"),
+    "robot-study": ("hostsim.studies.robot_study", "owners' robots: describe, experiments, fit, gains, stand (issue 24)"),
     "push-limit": ("hostsim.studies.push_limit", "the largest push on link 3 any controller within u_max recovers (LP bound)"),
     "bench-sim": ("hostsim.studies.sim_bench", "simulation speed: real-time factor, Monte Carlo throughput"),
     "replay": ("hostsim.logs.replay", "replay a robot log on the host (make replay)"),
     "identify": ("hostsim.logs.identify", "identify motor parameters from identify logs"),
+    "fit-robot": ("hostsim.model.robotfit", "fit the fall and swing tests into your robot's parameters file"),
     "watch": ("hostsim.logs.watch", "live telemetry from the robot: scrolling plots, recording (make watch)"),
     "drive": ("hostsim.logs.drive", "drive the robot from the keyboard over UDP (make drive)"),
     "export": ("hostsim.logs.export", "a robot log as CSV for spreadsheets and notebooks"),

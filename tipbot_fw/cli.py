@@ -1,4 +1,5 @@
-"""Command line: python3 -m tipbot_fw {run,check,calibrate,bench,identify} ... (exit codes: tipbot_fw.safety).
+"""Command line: python3 -m tipbot_fw {run,check,calibrate,bench,identify,fall-test,swing-test} ... (exit codes:
+tipbot_fw.safety).
 
 Order of a run: the signal handlers (before anything else), the supervisor's page if there is
 one (tipbot_fw.supervisor), the configuration, gains and telemetry target (--telemetry: its
@@ -9,7 +10,7 @@ command line unchanged (the launcher passes its arguments on).
 import argparse
 import os
 
-from tipbot_fw import heartbeat, identify, logfile, safety
+from tipbot_fw import experiments, heartbeat, identify, logfile, safety
 from tipbot_fw.calibration import calibrate_gyro
 from tipbot_fw.clock import MonotonicClock
 from tipbot_fw.config import (SYSFS_ROOT, SYSFS_ROOT_ENV, ConfigError, check_config_against_gains,
@@ -73,7 +74,20 @@ def _parser():
     sp.add_argument('--telemetry-every', metavar='N', type=_positive_int, default=DEFAULT_EVERY,
                     help='one datagram every N ticks (default {})'.format(DEFAULT_EVERY))
     common(sp)
-    sp = sub.add_parser('check', help='devices, drivers, battery, gyro stillness; never drives motors')
+    sp = sub.add_parser('check', help='devices, drivers, battery, gyro stillness; never drives motors; with --gains '
+                        'and --fall-log, the pre-flight check of the experiments against the gains (tipbot_fw.preflight)')
+    sp.add_argument('--gains', metavar='FILE', help='the gains file whose robot the experiments must match')
+    sp.add_argument('--fall-log', metavar='LOG', help='the fall test\'s log (python3 -m tipbot_fw fall-test)')
+    sp.add_argument('--swing-log', metavar='LOG', action='append', default=[],
+                    help='a swing test\'s log (python3 -m tipbot_fw swing-test), once per joint')
+    common(sp)
+    sp = sub.add_parser('fall-test', help='the fall test: hold the robot upright, let go when told; the joints held '
+                        '(tipbot_fw.experiments)', description=experiments.__doc__.split('\n\n')[0])
+    experiments.add_arguments(sp, 'fall')
+    common(sp)
+    sp = sub.add_parser('swing-test', help='the swing test: link 1 held upright, one joint swings its link '
+                        '(tipbot_fw.experiments)', description=experiments.__doc__.split('\n\n')[0])
+    experiments.add_arguments(sp, 'swing')
     common(sp)
     sp = sub.add_parser('calibrate', help='measure and print the gyro bias')
     common(sp)
@@ -137,6 +151,10 @@ def _main(argv, guard, hbt, supervisor_problem):
         return safety.EXIT_INVALID
     if args.command == 'identify':   # one motor, not the robot's full set of devices
         return identify.main_identify(args, say=_say)
+    args.heartbeat = hbt
+    if args.command == 'check' and args.gains and not args.fall_log:
+        _say('refused to start: check --gains needs --fall-log LOG (the pre-flight check)')
+        return safety.EXIT_INVALID
     try:
         notes = []
         config = load_config(args.config, notes)
@@ -335,7 +353,12 @@ def _check(args, config, gains, devices):
     else:
         print('battery {:.2f} V (minimum {} V)'.format(bv, minimum))
     _, gyro_code = _gyro(devices, config)
-    return code or gyro_code
+    code = code or gyro_code
+    if gains is not None:
+        from tipbot_fw.preflight import run_check
+        ok, _ = run_check(gains, args.fall_log, args.swing_log, say=print)
+        code = code or (safety.EXIT_OK if ok else safety.EXIT_REFUSED)
+    return code
 
 
 def _calibrate(args, config, gains, devices):
@@ -348,5 +371,12 @@ def _bench(args, config, gains, devices):
     return safety.EXIT_OK
 
 
+def _experiment(kind):
+    def command(args, config, gains, devices):
+        return experiments.main_experiment(kind, args, config, devices, heartbeat=args.heartbeat)
+    return command
+
+
 # The commands that take the devices as they are ('run' has its log, heartbeat, cues: _start)
-COMMANDS = {'check': _check, 'calibrate': _calibrate, 'bench': _bench}
+COMMANDS = {'check': _check, 'calibrate': _calibrate, 'bench': _bench, 'fall-test': _experiment('fall'),
+            'swing-test': _experiment('swing')}

@@ -171,6 +171,8 @@ def gains_from_dict(doc, source='<gains>', sha256=None, expected_ts_s=None, chec
     g.parameters = doc['parameters']
     g.model_options = doc['model_options']
     g.kalman = _kalman_block(doc['kalman'], f) if check_kalman else None
+    from tipbot_fw.preflight import check_block     # the pre-flight check's figures (issue 24)
+    g.preflight = check_block(f, doc.get('preflight'))
     check_physics(g, f)
     return g
 

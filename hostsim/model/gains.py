@@ -29,7 +29,10 @@ import numpy as np
 from hostsim.errors import TipbotError
 from hostsim.model import design
 from hostsim.model import kalman
+from hostsim.model import preflight
 from hostsim.model import reference
+from hostsim.model import verdict
+from hostsim.model.spread import load_spread
 from hostsim.model.equations import INPUT_NAMES, STATE_NAMES, RobotModel, Variant, get_variant, state_scale_to_si
 from hostsim.model.params import DEFAULT_PARAMS_PATH, load_params, params_hash
 from hostsim.paths import GAINS_DIR
@@ -78,6 +81,12 @@ NUMERIC_FIELDS = {
     # the drive reference: K's velocity columns times the motion, and the model's inputs for it
     "kalman.reference.G": RTOL_RICCATI, "kalman.reference.U": RTOL_WELL_CONDITIONED,
     "kalman.reference.lean_rad": RTOL_WELL_CONDITIONED,
+    # the pre-flight block: the model's figures, and intervals found by bisection to 0.3 % and
+    # rounded to 3 digits (a kernel's last bits could only move a bound by one rounding step)
+    "preflight.fall_pole_1_s": RTOL_WELL_CONDITIONED, "preflight.levers_kg_m": RTOL_WELL_CONDITIONED,
+    "preflight.wheel_term_kg_m2": RTOL_WELL_CONDITIONED, "preflight.lever_axle_kg_m": RTOL_WELL_CONDITIONED,
+    **{"preflight.intervals." + name: 0.01 for name in ("fall_pole_1_s", "lever2_kg_m", "lever3_kg_m")},
+    **{"preflight.families.%s.factors" % name: 0.01 for name in ("fall_pole_1_s", "lever2_kg_m", "lever3_kg_m")},
     **{"kalman.reference.limits." + name: RTOL_WELL_CONDITIONED for name in (
         "speed_mps", "accel_mps2", "jerk_mps3", "yaw_rate_dps", "yaw_accel_dps2", "yaw_jerk_dps3")},
 }
@@ -112,11 +121,14 @@ class GainDesign:
     structure: dict                  # design.structure_report
     kalman: kalman.KalmanDesign      # the firmware's default estimator (SI)
     state_feedback_radii: dict       # spectral radius of A - B K on each model (the detector's concern)
+    spread: Optional[object] = None  # hostsim.model.spread.Spread the design also holds, or None
+    preflight: Optional[dict] = None  # the gains file's preflight block (hostsim.model.preflight)
 
 
-def design_gains(variant, params, ts_s=DEFAULT_TS_S, detector_poles=None, noise=None):
+def design_gains(variant, params, ts_s=DEFAULT_TS_S, detector_poles=None, noise=None, spread=None):
     """Design everything the firmware needs for one model variant -> GainDesign (noise: the
-    Kalman filter's hostsim.model.kalman.NoiseSettings, default its defaults)."""
+    Kalman filter's hostsim.model.kalman.NoiseSettings, default its defaults; spread: the
+    parameters' hostsim.model.spread.Spread, whose robots the design must hold too)."""
     if isinstance(variant, str):
         variant = get_variant(variant)
     model = RobotModel(variant, params)
@@ -128,17 +140,18 @@ def design_gains(variant, params, ts_s=DEFAULT_TS_S, detector_poles=None, noise=
     cm_per_unit = variant.d_scale_m * 100.0
     q, r = design.weights_in_units(design.PAPER_Q_DIAG_CM, design.PAPER_R_DIAG,
                                    [cm_per_unit] * 2 + [1] * 3 + [cm_per_unit] * 2 + [1] * 3)
-    chosen = robust_design(variant, params, ts_s, a, b, q, r, e_mat, noise)
+    chosen = robust_design(variant, params, ts_s, a, b, q, r, e_mat, noise, spread)
     l1, l2, g_w, det_eig = design.robust_detector(a, b, c, e_mat, ACTUATED_INPUTS, detector_poles)
     return GainDesign(variant=variant, model=model, ts_s=float(ts_s), A=a, B=b, C=c, E=e_mat, Q=q, R=chosen["R"],
                       r_wheel_scale=chosen["r_wheel_scale"], margins=chosen["margins"],
                       K=chosen["K"], P=chosen["P"], K_w=chosen["K_w"], L1=l1, L2=l2, G_w=g_w,
                       closed_loop_eigenvalues=chosen["eig"], detector_eigenvalues=det_eig,
                       structure=design.structure_report(a, b, c, ACTUATED_INPUTS), kalman=chosen["kalman"],
-                      state_feedback_radii=state_feedback_radii(variant, params, ts_s, chosen["K"]))
+                      state_feedback_radii=state_feedback_radii(variant, params, ts_s, chosen["K"]),
+                      spread=spread, preflight=preflight.preflight_block(chosen["kalman"], params, ts_s))
 
 
-def robust_design(variant, params, ts_s, a, b, q, r, e_mat, noise=None):
+def robust_design(variant, params, ts_s, a, b, q, r, e_mat, noise=None, spread=None):
     """The LQR and the Kalman filter, made robust together: the first wheel input weight of
     design.WHEEL_WEIGHT_LADDER (physical variant; the paper's weights for the paper variant)
     and input-noise scale of kalman.INPUT_NOISE_LADDER whose loop (plant, filter, law) has a
@@ -146,7 +159,7 @@ def robust_design(variant, params, ts_s, a, b, q, r, e_mat, noise=None):
     (kalman.Margins.robust), the physical variant's law with integral action first (law_design),
     without it if no step holds with it. When none does, the plain design (both factors 1, the
     integrators if the variant has them). -> dict."""
-    uncertainty = kalman.UncertaintySet(params, ts_s)
+    uncertainty = kalman.UncertaintySet(params, ts_s, () if spread is None else spread.robots(params))
     t = state_scale_to_si(variant)
     ti = np.linalg.inv(t)
     base = kalman.NoiseSettings() if noise is None else noise
@@ -238,6 +251,7 @@ def to_document(g):
         "u_max_v": _num(params["u_max_v"]),
         "r_wheel_scale": _num(g.r_wheel_scale),
         "robust_to_models": dict(kalman.UncertaintySet.describe(), stabilized=g.margins.robust,
+                                 **({} if g.spread is None else {"parameter_spread": g.spread.describe()}),
                                  worst_spectral_radius=_num(g.margins.radius),
                                  worst_radius_at=_rounded(list(g.margins.radius_at)),
                                  least_damping=_num(g.margins.damping),
@@ -265,6 +279,8 @@ def to_document(g):
     if reference_doc is not None:
         kal["reference"] = reference_doc
     doc["kalman"] = _rounded(kal)
+    if g.preflight is not None:
+        doc["preflight"] = _rounded(g.preflight)
     return doc
 
 
@@ -372,10 +388,14 @@ def robustness_lines(g):
     m = g.margins
 
     def at(w):
-        return "%s model, duties %g ms into the tick, motor gain x%g, wheel radius x%g" % (w[0], w[1] * 1e3, w[2], w[3])
+        robot = ("wheel radius x%g" % w[3]) if not isinstance(w[3], str) else "the robot at the fit's %s" % w[3]
+        return "%s model, duties %g ms into the tick, motor gain x%g, %s" % (w[0], w[1] * 1e3, w[2], robot)
     span = "both models, %s ms of delay, motor gain x%s, wheel radius x%s" % (
         "/".join("%g" % (d * 1e3) for d in u["delays_s"]), "/".join("%g" % v for v in u["input_gains"]),
         "/".join("%g" % v for v in u["wheel_radius_factors"]))
+    if g.spread is not None and g.spread.axes():
+        span += ", the robots %g sigma along the %d loosest axes of the parameters' fit" % (
+            g.spread.describe()["k_sigma"], len(g.spread.axes()))
     where = "worst radius %.5f (%s), least damping %.3f (%s)" % (m.radius, at(m.radius_at), m.damping, at(m.damping_at))
     if m.robust:
         return ["  wheel input weight x%g, filter input noise x%g: the loop holds %s" % (
@@ -518,10 +538,15 @@ def main(argv=None):
     names = VARIANT_NAMES if args.variant == "all" else (args.variant,)
     try:
         params = load_params(args.params)
+        spread = load_spread(args.params)
         status = 0
         for name in names:
-            g = design_gains(name, params, args.ts)
+            g = design_gains(name, params, args.ts, spread=spread)
             print(summary(g))
+            if spread is not None:
+                lines, text = verdict.report(g, spread)
+                print("\n".join(lines))
+                print("  VERDICT: " + text)
             doc = to_document(g)
             path = os.path.join(args.out_dir, output_name(name, args.ts, args.params))
             shown = _shown(path)

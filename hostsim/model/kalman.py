@@ -442,9 +442,11 @@ class Margins:
 
 
 class UncertaintySet:
-    """The plants of the uncertainty above at one period, built once; margins(kd) -> Margins."""
+    """The plants of the uncertainty above at one period, built once; margins(kd) -> Margins.
+    extra: [(label, parameters)]: more robots, each as the physical model with the duties landing
+    2 ms into the tick (hostsim.model.spread: where an identification's fit is loose)."""
 
-    def __init__(self, params, ts_s):
+    def __init__(self, params, ts_s, extra=()):
         from hostsim.model.equations import RobotModel, state_scale_to_si
         from hostsim.model.params import scaled_params
         self.plants = []
@@ -461,6 +463,8 @@ class UncertaintySet:
             add(name, params, 1.0, ROBUST_DELAYS_S[::-1], ROBUST_INPUT_GAINS[::-1])   # the harder first
         for f in ROBUST_WHEEL_RADII:
             add("physical", scaled_params({"rw_m": f}, params), f, (0.002,), (1.0,))
+        for label, p in extra:
+            add("physical", p, label, (0.002,), (1.0,))
 
     def holds(self, kd):
         """margins(kd).robust, stopping at the first plant that fails (for the design's ladder)."""

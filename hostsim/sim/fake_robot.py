@@ -57,6 +57,7 @@ from hostsim.sim.fil import firmware_config
 from hostsim.model.equations import RobotModel, state_scale_to_si
 from hostsim.model.params import load_params, scaled_params
 from hostsim.world.plant import Plant
+from hostsim.world.stand import Stand
 from hostsim.sim.scenario import disturbance_at, load_scenario, parse_scenario
 from hostsim.world.sensors import SensorModel
 from tipbot_fw.config import MOTOR_ROLES, ConfigError
@@ -76,13 +77,15 @@ MELODY_GAP_S = 0.3
 class RealTimeRobot:
     """Plant + sensors + FakeEV3 in ``root``, advanced by :meth:`step` at wall-clock times."""
 
-    def __init__(self, sc, root, params=None, hold_s=DEFAULT_HOLD_S, say=None):
+    def __init__(self, sc, root, params=None, hold_s=DEFAULT_HOLD_S, say=None, stand=False):
         self.sc = sc
         nominal = load_params() if params is None else params
         p = scaled_params(sc.param_scale, nominal)
         self.model = RobotModel(sc.plant_variant, p)
         to_model = 1.0 / np.diag(state_scale_to_si(self.model.variant))
         self.plant = Plant(self.model, np.array(sc.x0_si) * to_model, dt_s=PLANT_DT_S)
+        if stand:       # link 1 held on a stand (the swing test): hostsim.world.stand
+            self.plant.load = Stand(self.model, self.plant.x)
         self.config = firmware_config(sc, nominal["rw_m"])
         s = sc.sensors
         self.battery_v = s.battery_v
@@ -244,11 +247,14 @@ def main(argv=None):
                     help="release the robot this long after the firmware's start-up at the latest (default %g)"
                     % DEFAULT_HOLD_S)
     ap.add_argument("--write-config", metavar="FILE", help="write the matching firmware configuration to FILE")
+    ap.add_argument("--stand", action="store_true", help="link 1 held upright on a stand (for the swing test, "
+                    "python3 -m tipbot_fw swing-test)")
     ap.add_argument("--trace", metavar="FILE", help="save the plant's true trajectory (npz) at the end")
     a = ap.parse_args(argv)
     try:
         sc = load_scenario(a.scenario) if a.scenario else parse_scenario({}, "<default scenario>")
-        robot = RealTimeRobot(sc, a.root, hold_s=a.hold_s, say=lambda m: print("fake_robot: " + m, flush=True))
+        robot = RealTimeRobot(sc, a.root, hold_s=a.hold_s, say=lambda m: print("fake_robot: " + m, flush=True),
+                              stand=a.stand)
     except (TipbotError, ConfigError, FakeEV3Error) as e:     # a scenario the firmware could not be told
         print("fake_robot: error: %s" % e, file=sys.stderr)
         return 2

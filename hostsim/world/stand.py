@@ -1,0 +1,43 @@
+"""Link 1 held on a stand (the joint swing test, issue 24): a stiff spring and damper on the axle
+and link 1.
+
+The owner clamps link 1 upright (a stand, a vice, a hand braced on the table) while a joint
+motor swings the links above it. In the plant that is a generalized force on d_r, d_l and th1
+pulling them back to where they were held: a stand that gives a little (10 Hz, about critically
+damped for the robot's own inertia about the axle and along the floor), as any clamp and hand
+does, and stiff enough that the links' reactions move link 1 by a fraction of a degree. It is a
+``Plant.load`` (hostsim.world.plant: ``due``, ``set_params``, ``force``), for the plant and the
+drivetrain plant alike.
+"""
+import math
+
+from hostsim.model.bodies import joint_inertias
+
+STAND_HZ = 10.0
+STAND_DAMPING = 0.9
+
+
+class Stand:
+    """Holds q[:3] (d_r, d_l, th1, the model's units) at ``q0``; force(x) -> the generalized force."""
+
+    def __init__(self, model, q0):
+        p = model.params
+        w = 2 * math.pi * STAND_HZ
+        # the inertia each spring works against: link 1 with all above it, the robot along the floor
+        # with its wheels' and rotors' rotation (the rotors' reflected inertia dominates)
+        i_axle = joint_inertias(p)[0] + p["right_wheel_jm_kg_m2"] + p["left_wheel_jm_kg_m2"]
+        mass = (p["m1_kg"] + p["m2_kg"] + p["m3_kg"]) / 2 + p["mw_kg"] + (p["jw_kg_m2"] + p["right_wheel_jm_kg_m2"]) / \
+            p["rw_m"] ** 2
+        s = model.variant.d_scale_m            # a force per unit of d: N per cm in the paper variant
+        self.k = (mass * w * w * s * s, mass * w * w * s * s, i_axle * w * w)
+        self.c = tuple(2 * STAND_DAMPING * k / w for k in self.k)
+        self.q0 = [float(v) for v in q0[:3]]
+
+    def due(self, t_s):
+        return None
+
+    def set_params(self, params):
+        pass
+
+    def force(self, x):
+        return [-self.k[i] * (x[i] - self.q0[i]) - self.c[i] * x[5 + i] for i in range(3)] + [0.0, 0.0]

@@ -1,0 +1,216 @@
+"""An owner's robot (issue 24): the guided description, the fall and swing fits on data with known
+answers, the experiments on a simulated robot, the fit into a parameters file, the gains' preflight
+block and the pre-flight check that refuses a robot the gains were not made for."""
+import io
+import json
+import math
+import os
+
+import numpy as np
+import pytest
+
+from hostsim.errors import ParameterError
+from hostsim.model import bodies, description
+from hostsim.model.params import load_params, parse_params, scaled_params
+from hostsim.model.spread import spread_from_doc
+from hostsim.sim.experiment_sim import simulate_experiment
+from tipbot_fw import bodyfit, preflight
+from tipbot_fw.experiments import JOINT_KD, JOINT_KP, swing_reference
+from tipbot_fw.gains import GainsError, gains_from_dict, load_gains
+from conftest import PHYSICAL_GAINS, REPO
+
+PAPER = {"links": [{"mass_g": 663, "length_mm": 200, "balance_mm": 100},
+                   {"mass_g": 290, "length_mm": 150, "balance_mm": 75},
+                   {"mass_g": 205, "length_mm": 100, "balance_mm": 50, "width_mm": 0}],
+         "wheel": {"diameter_mm": 68, "mass_g": 53}, "track_mm": 255}
+
+
+def base_doc():
+    with open(os.path.join(REPO, "params", "robot.json")) as f:
+        return json.load(f)
+
+
+# ---------------------------------------------------------------------------- the description
+def test_the_paper_robot_described_by_scale_and_ruler_gives_the_papers_parameters():
+    doc, warnings = description.build(description.check_answers(PAPER, "answers.json"), base_doc())
+    p = parse_params(doc)
+    paper = load_params()
+    for name in ("m1_kg", "l2_m", "rw_m", "track_m", "mw_kg"):
+        assert p[name] == pytest.approx(paper[name], rel=1e-6)
+    # the paper's inertias are uniform rods: the box estimate with no width
+    for i in (1, 2, 3):
+        assert p["j%d_kg_m2" % i] == pytest.approx(paper["j%d_kg_m2" % i], rel=2e-3)
+        assert doc["parameters"]["j%d_kg_m2" % i]["source"].startswith("estimated")
+        assert doc["parameters"]["m%d_kg" % i]["source"].startswith("measured")
+    spread = spread_from_doc(doc, "<d>")
+    assert spread.rel_sigma("j2_kg_m2") == pytest.approx(description.INERTIA_SIGMA)
+    assert spread.rel_sigma("m3_kg") == pytest.approx(description.MASS_SIGMA)
+    assert warnings == []
+
+
+def test_a_link_balancing_far_from_its_middle_is_flagged_and_its_inertia_bounded():
+    answers = json.loads(json.dumps(PAPER))
+    answers["links"][0]["balance_mm"] = 10       # a heavy motor at the axle
+    doc, warnings = description.build(description.check_answers(answers, "a.json"), base_doc())
+    assert len(warnings) == 1 and "link 1 balances at 5 %" in warnings[0]
+    # all the mass between the ends with the balance point at 10 of 200 mm: at most m b (L - b),
+    # less than the uniform rod's m L^2 / 12
+    assert doc["parameters"]["j1_kg_m2"]["value"] == pytest.approx(0.663 * 0.01 * 0.19, rel=1e-4)
+
+
+@pytest.mark.parametrize("change, message", [
+    (lambda a: a["links"][1].update(mass_g=-3), "a.json: field links[1].mass_g must be a number"),
+    (lambda a: a["links"][2].update(balance_mm=150), "a.json: field links[2].balance_mm is 150 mm, beyond"),
+    (lambda a: a["links"][0].update(colour="red"), "a.json: field links[0].colour"),
+    (lambda a: a.pop("track_mm"), "a.json: field track_mm"),
+])
+def test_a_bad_answer_is_refused_by_file_and_field(change, message):
+    answers = json.loads(json.dumps(PAPER))
+    change(answers)
+    with pytest.raises(ParameterError) as e:
+        description.check_answers(answers, "a.json")
+    assert str(e.value).startswith(message) and "\n" not in str(e.value)
+
+
+def test_the_questions_take_typed_answers_and_the_examples_on_enter():
+    typed = iter(["700", "", "", "", "x", "300", "", "", ""] + [""] * 8)
+    out = io.StringIO()
+    answers = description.ask(read=lambda prompt: next(typed), write=lambda t: out.write(t + "\n"))
+    description.check_answers(answers, "<typed>")
+    assert answers["links"][0]["mass_g"] == 700 and answers["links"][0]["length_mm"] == 200
+    assert answers["links"][1]["mass_g"] == 300          # after 'x' was refused
+    assert "'x' is not a number of g" in out.getvalue()
+
+
+def test_describe_command_writes_a_file_make_gains_accepts(tmp_path):
+    from hostsim.__main__ import main
+    answers = tmp_path / "answers.json"
+    answers.write_text(json.dumps(PAPER))
+    out = tmp_path / "mine.json"
+    assert main(["describe", "--answers", str(answers), "--out", str(out)]) == 0
+    assert parse_params(json.loads(out.read_text()))["m3_kg"] == pytest.approx(0.205)
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"links": []}')
+    assert main(["describe", "--answers", str(bad), "--out", str(tmp_path / "x.json")]) == 2
+
+
+# ---------------------------------------------------------------------------- fits, known answers
+def test_the_fall_fit_finds_the_ratio_of_a_simulated_fall_from_its_whole_degrees():
+    """The fall model itself, released at 0.31 s from 1.2 deg, read in whole degrees with a gyro
+    bias error of 1 deg/s: the ratio within 2 %."""
+    ratio, e, rw, g = 0.36, 0.0067, 0.034, 9.81
+    t = np.arange(0.0, 1.2, 0.005)
+    psi_poly = np.array([0.0, -0.4, 0.0, 0.0])      # the wheels roll back relative to link 1
+    th, w = bodyfit.simulate_fall(t, 0.31, 0.021, ratio, e, rw, g, psi_poly)
+    bias = math.radians(1.0)
+    meas = np.round(np.degrees(th - 0.021 + bias * t)) * math.pi / 180
+    keep = np.abs(meas) < 0.6
+    sig = {"t": t[keep], "tilt": meas[keep], "rate": (w + bias)[keep], "psi": np.polyval(psi_poly, t)[keep],
+           "th2": np.zeros(keep.sum()), "th3": np.zeros(keep.sum())}
+    fit = bodyfit.fit_fall(sig, rw, g, e)
+    assert fit["ratio_m"] == pytest.approx(ratio, rel=0.02)
+    assert fit["pole_1_s"] == pytest.approx(math.sqrt(g / ratio), rel=0.01)
+
+
+def test_the_swing_fit_finds_lever_and_inertia_of_a_known_joint():
+    """A joint with Coulomb friction under the experiment's own PD and reference, read in whole
+    degrees: lever within 3 %, inertia within 10 %."""
+    inertia, lever, k_v, c, tc, g = 0.0118, 0.0628, 0.0355, 0.0164, 0.01, 9.81
+    h = 0.005
+    th = w = t = 0.0
+    hist, rows = [], []
+    while True:
+        ref = swing_reference(t, 2)
+        if ref is None:
+            break
+        q = math.floor(math.degrees(th)) * math.pi / 180
+        hist = (hist + [q])[-5:]
+        rate = (q - hist[0]) / (max(len(hist) - 1, 1) * h)
+        d = max(-100, min(100, round(JOINT_KP[2] * (ref[0] - q) + JOINT_KD[2] * (ref[1] - rate))))
+        rows.append((t, q, d * 0.08, ref[0]))
+        for _ in range(50):
+            acc = (k_v * d * 0.08 - c * w + g * lever * math.sin(th) - tc * np.sign(w)) / inertia
+            w += acc * h / 50
+            th += w * h / 50
+        t += h
+    a = np.array(rows)
+    sig = {"t": a[:, 0], "th2": a[:, 1], "th3": np.zeros(len(a)), "u2": a[:, 2], "ref": a[:, 3]}
+    fit = bodyfit.fit_swing(sig, 2, k_v, c, g)
+    assert fit["lever_kg_m"] == pytest.approx(lever, rel=0.03)
+    assert fit["inertia_kg_m2"] == pytest.approx(inertia, rel=0.10)
+    assert fit["coulomb_nm"] > 0
+
+
+# ---------------------------------------------------------------------------- the experiments, simulated
+@pytest.fixture(scope="module")
+def paper_logs(tmp_path_factory):
+    d = tmp_path_factory.mktemp("paper")
+    p = load_params()
+    logs = {}
+    for kind, joint in (("fall", None), ("swing", 3), ("swing", 2)):
+        path = str(d / ("%s%s.log" % (kind, joint or "")))
+        code, header, _ = simulate_experiment(kind, p, path, joint=joint)
+        assert code == 0, header["stop_message"]
+        logs[kind + str(joint or "")] = path
+    return logs
+
+
+def test_the_fit_of_the_simulated_experiments_finds_the_papers_robot(paper_logs, tmp_path):
+    from hostsim.model.robotfit import fit_files
+    answers = json.loads(json.dumps(PAPER))
+    answers["links"][2]["mass_g"] = 180          # the owner's scale read link 3 12 % light
+    desc = tmp_path / "desc.json"
+    doc, _ = description.build(description.check_answers(answers, "a"), base_doc())
+    desc.write_text(json.dumps(doc))
+    fitted_doc, fitted, measured = fit_files(str(desc), paper_logs["fall"], [paper_logs["swing3"], paper_logs["swing2"]])
+    true = load_params()
+    assert bodies.fall_pole(fitted) == pytest.approx(bodies.fall_pole(true), rel=0.05)
+    for a, b in zip(bodies.levers(fitted), bodies.levers(true)):
+        assert a == pytest.approx(b, rel=0.10)
+    spread = spread_from_doc(fitted_doc, "<fitted>")
+    assert spread.rel_sigma("j3_kg_m2") < description.INERTIA_SIGMA      # the swing told it something
+    assert set(measured) >= {"fall_ratio", "lever2", "lever3"}
+
+
+def test_the_pre_flight_check_passes_the_robot_the_gains_were_made_for(paper_logs):
+    gains = load_gains(PHYSICAL_GAINS)
+    lines = []
+    ok, why = preflight.run_check(gains, paper_logs["fall"], [paper_logs["swing3"], paper_logs["swing2"]],
+                                  say=lines.append)
+    assert ok, "\n".join(lines)
+    assert sum(line.endswith(": ok") for line in lines) == 3
+
+
+def test_the_pre_flight_check_refuses_a_robot_whose_link_3_is_twice_as_heavy_as_entered(tmp_path):
+    """The gains of the description (the committed physical gains: params/robot.json), the robot
+    with link 3 twice as heavy (its inertia too): its fall pole hardly moves (-4 %), its joint-3
+    swing shows the lever doubled, and the check says so."""
+    true = scaled_params({"m3_kg": 2.0, "j3_kg_m2": 2.0}, load_params())
+    fall, swing = str(tmp_path / "fall.log"), str(tmp_path / "swing3.log")
+    assert simulate_experiment("fall", true, fall)[0] == 0
+    assert simulate_experiment("swing", true, swing, joint=3)[0] == 0
+    lines = []
+    ok, why = preflight.run_check(load_gains(PHYSICAL_GAINS), fall, [swing], say=lines.append)
+    assert not ok
+    assert "lever3_kg_m outside what the gains hold" in why, "\n".join(lines)
+    assert any(line.startswith("pre-flight: fall_pole_1_s") and line.endswith(": ok") for line in lines)
+
+
+def test_a_gains_file_with_a_bad_preflight_interval_is_refused():
+    with open(PHYSICAL_GAINS) as f:
+        doc = json.load(f)
+    doc["preflight"]["intervals"]["lever3_kg_m"] = [0.02, 0.01]
+    with pytest.raises(GainsError) as e:
+        gains_from_dict(doc, "g.json")
+    assert str(e.value).startswith("g.json: field preflight.intervals.lever3_kg_m must be an interval")
+
+
+def test_the_committed_gains_hold_their_own_robot_inside_every_preflight_interval():
+    g = load_gains(PHYSICAL_GAINS)
+    b = g.preflight
+    assert b["intervals"]["fall_pole_1_s"][0] < b["fall_pole_1_s"] < b["intervals"]["fall_pole_1_s"][1]
+    for j in (2, 3):
+        lo, hi = b["intervals"]["lever%d_kg_m" % j]
+        assert lo < b["levers_kg_m"][j - 1] < hi
+    # link 3 doubled lies outside: the committed physical gains do not hold it
+    assert 2 * b["levers_kg_m"][2] > b["intervals"]["lever3_kg_m"][1]
