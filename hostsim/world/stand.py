@@ -6,7 +6,7 @@ motor swings the links above it. In the plant that is a generalized force on d_r
 pulling them back to where they were held: a stand that gives a little (10 Hz, about critically
 damped for the robot's own inertia about the axle and along the floor), as any clamp and hand
 does, and stiff enough that the links' reactions move link 1 by a fraction of a degree. It is a
-``Plant.load`` (hostsim.world.plant: ``due``, ``set_params``, ``force``), for the plant and the
+``Plant.load`` (hostsim.world.plant: ``due``, ``set_params``, ``reframe``, ``force``), for the plant and the
 drivetrain plant alike.
 """
 import math
@@ -38,6 +38,9 @@ class Stand:
 
     def set_params(self, params):
         pass
+
+    def reframe(self, x):
+        return x                        # a stand on a flat table: the floor's frame never turns
 
     def force(self, x):
         return [-self.k[i] * (x[i] - self.q0[i]) - self.c[i] * x[5 + i] for i in range(3)] + [0.0, 0.0]
