@@ -12,9 +12,9 @@ import numpy as np
 import scipy.linalg
 
 from tipbot_fw.bench import synthetic_gains_doc
-from tipbot_fw.clock import VirtualClock
+from tipbot_fw.io.clock import VirtualClock
 from tipbot_fw.config import config_from_overrides
-from tipbot_fw.devices import MemoryDevices
+from tipbot_fw.io.devices import MemoryDevices
 from tipbot_fw.gains import ACTUATED_INPUTS, gains_from_dict
 
 TS = 0.005
@@ -164,6 +164,6 @@ class TickCounter(object):
 
 def moving_readings(polarity=1):
     """A MemoryDevices source whose readings move every tick (so every logged value differs from
-    tick to tick), by steps the hardware can make (tipbot_fw.plausibility: a few counts a tick)."""
+    tick to tick), by steps the hardware can make (tipbot_fw.guard.plausibility: a few counts a tick)."""
     ticks = iter(range(10 ** 6))
     return lambda: (lambda n: ((polarity * 3 * n, -n, n % 12, n % 7), (n // 50, (n % 5) - 2)))(next(ticks))

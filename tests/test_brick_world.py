@@ -13,9 +13,10 @@ from hostsim.sim.scenario import Brick, load_scenario
 from hostsim.studies.montecarlo import gains_document
 from hostsim.world.brick_timing import AccessTimes, BrickClock, TimedIO
 from hostsim.world.fake_ev3 import GYRO_MODE_TRIES, GYRO_MODE_TRY_S, FakeEV3
-from tipbot_fw import feedback, logfile
+from tipbot_fw.io import lights_speaker
+from tipbot_fw.record import logfile
 from tipbot_fw.config import defaults
-from tipbot_fw.ev3io import Ev3Devices, Ev3SetupError
+from tipbot_fw.io.ev3dev import Ev3Devices, Ev3SetupError
 
 TACHO = (0.0003, 0.00045)
 
@@ -79,14 +80,14 @@ def test_each_read_samples_the_world_at_its_own_moment_and_the_compute_is_charge
 
 
 def test_the_lights_and_the_speaker_cost_brick_time():
-    # tipbot_fw.feedback's writes in the loop's slack go through the timed I/O like the duties:
+    # tipbot_fw.io.lights_speaker's writes in the loop's slack go through the timed I/O like the duties:
     # each costs a sensor-class access, and the fake EV3 shows what was written
     brick = Brick(tacho_access_s=(0.0004, 0.0004), sensor_access_s=(0.0001, 0.0001))
     world = _Recorder()
     with FakeEV3() as fake:
         clock = BrickClock()
         io = TimedIO(fake.io, fake, clock, world, AccessTimes(brick, np.random.default_rng(0)))
-        signals = feedback.BrickSignals(fake.sysfs_root, io=io, now=clock.now)
+        signals = lights_speaker.BrickSignals(fake.sysfs_root, io=io, now=clock.now)
         try:
             t0 = clock.now()
             for target, value in ((1, 255), (3, 255), ("tone", 1047)):
@@ -111,7 +112,7 @@ def test_a_timed_run_gives_the_loops_cues_on_the_fake_brick():
     for k, ops in enumerate(run.io_per_iteration):
         for op, rel, data in ops:
             if "sound" in rel:
-                tones.append((k, feedback.INPUT_EVENT.unpack(data)[-1]))
+                tones.append((k, lights_speaker.INPUT_EVENT.unpack(data)[-1]))
             elif "leds/" in rel:
                 lights.append((k, rel.split("/")[1], data))
     # the let-go melody's second and third notes and its end, then 'balancing' after 1 s (200

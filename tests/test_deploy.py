@@ -178,7 +178,7 @@ def test_deploy_copies_only_changes_and_installs_a_launcher_brickman_can_start(b
         data = f.read()
     assert data.startswith(SHEBANG) and b"\r" not in data
     assert os.stat(launcher).st_mode & stat.S_IXUSR
-    for rel in ("install.sh", "gains.json", "tipbot_fw/core.py", "tipbot_fw/default_config.json"):
+    for rel in ("install.sh", "gains.json", "tipbot_fw/cores/core.py", "tipbot_fw/default_config.json"):
         assert os.path.isfile(os.path.join(brick.install_dir, rel)), rel
     assert os.path.isdir(os.path.join(brick.install_dir, "logs"))
 
@@ -325,7 +325,7 @@ def test_run_on_the_brick_fetch_the_log_and_replay_it_exactly(brick, tmp_path):
     p = brick.make("logs", "LOGS_DIR=%s" % dest)
     assert "logs: 0 new logs from testbrick" in p.stdout and "1 already here" in p.stdout, p.stdout
 
-    from tipbot_fw import logfile
+    from tipbot_fw.record import logfile
     header, rows = logfile.read_log(logs[0])
     assert len(rows) >= 10, header.get("stop_message")     # the control loop ran
     assert "released at" in robot_out, robot_out            # and the simulated robot moved
@@ -358,7 +358,7 @@ def test_run_and_logs_before_any_deploy_say_to_deploy_first(brick, tmp_path):
 def test_the_real_time_fake_robot_holds_the_robot_until_the_firmware_drives_a_motor(tmp_path):
     from hostsim.sim.fake_robot import RealTimeRobot
     from hostsim.sim.scenario import parse_scenario
-    from tipbot_fw.ev3io import Ev3Devices
+    from tipbot_fw.io.ev3dev import Ev3Devices
 
     sc = parse_scenario({"x0_si": [0, 0, 0.05, 0, 0, 0, 0, 0, 0, 0]}, "<test>")
     robot = RealTimeRobot(sc, str(tmp_path / "sys"), hold_s=10.0)

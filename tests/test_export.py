@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from hostsim.logs import export
-from tipbot_fw import logfile
+from tipbot_fw.record import logfile
 
 
 def a_log(path, columns=logfile.COLUMNS, kind=None, nrows=30, seed=4):
@@ -67,10 +67,10 @@ def test_a_log_that_cannot_be_read_gets_one_line(tmp_path, capsys, make, message
 
 def test_a_kalman_log_exports_the_physical_columns_the_replay_rebuilds(tmp_path, capsys):
     # the rows hold raw readings and the filter's integer state: the CSV adds x^, w^, u, u_cmd
-    # and the bias as tipbot_fw.replay.signals() makes them, with the gains found by their hash
+    # and the bias as tipbot_fw.record.replay.signals() makes them, with the gains found by their hash
     import fw_support as S
     from tipbot_fw.gains import load_gains
-    from tipbot_fw.replay import signals
+    from tipbot_fw.record.replay import signals
     from tipbot_fw.session import run_session
     (tmp_path / 'robot').mkdir()
     gains_path = S.write_json(tmp_path / 'robot' / 'gains-x.json', S.gains_doc())

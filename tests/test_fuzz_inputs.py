@@ -16,7 +16,7 @@ from conftest import PARAMS_FILE, PHYSICAL_GAINS, REPO
 from hostsim.errors import ParameterError
 from hostsim.model.params import load_params
 from hostsim.sim.scenario import BRICK_BOUNDS, ScenarioError, load_scenario
-from tipbot_fw import logfile
+from tipbot_fw.record import logfile
 from tipbot_fw.config import ConfigError, load_config
 from tipbot_fw.gains import GainsError, load_gains
 

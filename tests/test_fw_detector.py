@@ -1,9 +1,9 @@
-"""tipbot_fw.detector: the folded one-matrix step equals the equations; the detector converges."""
+"""tipbot_fw.cores.detector: the folded one-matrix step equals the equations; the detector converges."""
 
 import numpy as np
 
 import fw_support as S
-from tipbot_fw.detector import N_FIXED, fold, fold_full, reference_step
+from tipbot_fw.cores.detector import N_FIXED, fold, fold_full, reference_step
 from tipbot_fw.gains import ACTUATED_INPUTS, load_gains
 from conftest import PHYSICAL_GAINS, gains_path
 

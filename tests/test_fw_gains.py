@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import fw_support as S
-from tipbot_fw import logfile
+from tipbot_fw.record import logfile
 from tipbot_fw.gains import GainsError, gains_from_dict, load_gains
 from conftest import PAPER_GAINS, PHYSICAL_GAINS
 

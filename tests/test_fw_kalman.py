@@ -1,4 +1,4 @@
-"""tipbot_fw.kalman: the fixed-point core equals the readable filter and law; the filter tells the
+"""tipbot_fw.cores.kalman: the fixed-point core equals the readable filter and law; the filter tells the
 gyro bias from the lean and follows a drifting bias; no sum of the product can overflow."""
 import copy
 import math
@@ -8,17 +8,19 @@ import pytest
 
 import fw_support as S
 from conftest import PAPER_GAINS, PHYSICAL_GAINS
-from tipbot_fw import fixedpoint as fx
-from tipbot_fw import kalman, logfile, plausibility
-from tipbot_fw import replay as fw_replay
-from tipbot_fw.clock import VirtualClock
+from tipbot_fw.cores import fixedpoint as fx
+from tipbot_fw.cores import kalman
+from tipbot_fw.record import logfile
+from tipbot_fw.guard import plausibility
+from tipbot_fw.record import replay as fw_replay
+from tipbot_fw.io.clock import VirtualClock
 from tipbot_fw.cues import OwnerCues
 from tipbot_fw.session import run_session
-from tipbot_fw.devices import MemoryDevices
+from tipbot_fw.io.devices import MemoryDevices
 from tipbot_fw.gains import ACTUATED_INPUTS, load_gains
-from tipbot_fw.kalman import KalmanCore, fold, reference_step
+from tipbot_fw.cores.kalman import KalmanCore, fold, reference_step
 from tipbot_fw.loop import ControlLoop
-from tipbot_fw.safety import DeviceFailure
+from tipbot_fw.guard.safety import DeviceFailure
 
 DEG = math.pi / 180
 ACT = ACTUATED_INPUTS

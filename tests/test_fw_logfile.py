@@ -1,4 +1,4 @@
-"""tipbot_fw.logfile and tipbot_fw.replay: the log round-trips, damage is detected, runs replay."""
+"""tipbot_fw.record.logfile and tipbot_fw.record.replay: the log round-trips, damage is detected, runs replay."""
 import errno
 import json
 import os
@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 import fw_support as S
-from tipbot_fw import logfile
-from tipbot_fw.logfile import DetectorRows, LogFormatError, LogWriteError, LogWriter, col, read_log, write_log
-from tipbot_fw.replay import replay
+from tipbot_fw.record import logfile
+from tipbot_fw.record.logfile import DetectorRows, LogFormatError, LogWriteError, LogWriter, col, read_log, write_log
+from tipbot_fw.record.replay import replay
 from tipbot_fw.session import run_session
 
 

@@ -6,12 +6,13 @@ import numpy as np
 import pytest
 
 import fw_support as S
-from tipbot_fw import heartbeat, logfile, safety
-from tipbot_fw.clock import VirtualClock
-from tipbot_fw.core import make_core
-from tipbot_fw.devices import MemoryDevices
+from tipbot_fw.guard import heartbeat, safety
+from tipbot_fw.record import logfile
+from tipbot_fw.io.clock import VirtualClock
+from tipbot_fw.cores.core import make_core
+from tipbot_fw.io.devices import MemoryDevices
 from tipbot_fw.loop import SIDE_WAIT_S, ControlLoop
-from tipbot_fw.safety import OverrunLimit, Terminated
+from tipbot_fw.guard.safety import OverrunLimit, Terminated
 from tipbot_fw.session import run_session
 
 OVERRUN = logfile.FLAG_BITS['overrun']
@@ -340,7 +341,7 @@ def test_the_detector_core_balances_the_simulated_robot_too():
 def test_a_soft_rtprio_limit_below_the_hard_one_is_raised_before_asking(monkeypatch):
     """ulimit -Sr 0 under a hard limit of 60 (a pam_limits 'hard' line): the request raises the
     soft limit itself, as any process may, instead of being refused."""
-    from tipbot_fw import realtime
+    from tipbot_fw.guard import realtime
     limits = {'now': (0, 60)}
     monkeypatch.setattr(realtime.resource, 'getrlimit', lambda what: limits['now'])
     monkeypatch.setattr(realtime.resource, 'setrlimit', lambda what, v: limits.update(now=tuple(v)))

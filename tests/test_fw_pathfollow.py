@@ -1,4 +1,4 @@
-"""Following a course in the plane (tipbot_fw.pathfollow): the pose arithmetic, the offsets a lag
+"""Following a course in the plane (tipbot_fw.drive.pathfollow): the pose arithmetic, the offsets a lag
 at a turn in place makes, rows that are the course's own when the robot follows exactly, and the
 square driven on the realistic brick."""
 import math
@@ -7,9 +7,9 @@ import pytest
 
 import fw_support as S
 from conftest import PHYSICAL_GAINS
-from tipbot_fw import pathfollow as pf
+from tipbot_fw.drive import pathfollow as pf
 from tipbot_fw.gains import load_gains
-from tipbot_fw.kalman import REF, KalmanCore
+from tipbot_fw.cores.kalman import REF, KalmanCore
 
 
 @pytest.fixture(scope='module')

@@ -7,12 +7,12 @@ import numpy as np
 import pytest
 
 import fw_support as S
-from tipbot_fw import logfile
+from tipbot_fw.record import logfile
 from tipbot_fw.calibration import sample_counts
-from tipbot_fw.clock import VirtualClock
+from tipbot_fw.io.clock import VirtualClock
 from tipbot_fw.cues import OwnerCues
-from tipbot_fw.devices import MemoryDevices
-from tipbot_fw.logfile import FLAG_BITS, col, read_log
+from tipbot_fw.io.devices import MemoryDevices
+from tipbot_fw.record.logfile import FLAG_BITS, col, read_log
 from tipbot_fw.session import run_session
 
 FALL, JOINT_LIMIT, OVERRUN = FLAG_BITS['fall'], FLAG_BITS['joint_limit'], FLAG_BITS['overrun']

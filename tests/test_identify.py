@@ -19,7 +19,8 @@ from hostsim.model import gains as host_gains
 from hostsim.logs import identify as I
 from hostsim.model.motors import TABLE2
 from hostsim.world.motor_sim import one_motor_fake, simulate_identify
-from tipbot_fw import cli, logfile
+from tipbot_fw import cli
+from tipbot_fw.record import logfile
 from tipbot_fw import identify as fw
 from tipbot_fw.gains import load_gains
 from conftest import PARAMS_FILE, REPO

@@ -13,7 +13,7 @@ import pytest
 from hostsim.sim import fil
 from hostsim.logs import replay
 from hostsim.sim.scenario import parse_scenario
-from tipbot_fw import logfile
+from tipbot_fw.record import logfile
 from conftest import PAPER_GAINS, PHYSICAL_GAINS
 
 # Small gyro noise and a push: the readings, estimates and inputs move (not a trivial log).
@@ -92,7 +92,7 @@ def test_a_log_with_a_stall_replays_exactly_through_the_periods_the_core_predict
     assert 12 <= skipped.max() <= 14 and r.header["loop"]["skipped_periods"] >= skipped.max()
     assert r.exact and r.max_diff == 0.0
     # and the prediction mattered: without it the rows after the stall differ
-    from tipbot_fw.kalman import KalmanCore
+    from tipbot_fw.cores.kalman import KalmanCore
     saved = KalmanCore.skip
     try:
         KalmanCore.skip = lambda self, m: None

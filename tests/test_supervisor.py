@@ -10,9 +10,11 @@ import pytest
 
 import faults
 from conftest import PHYSICAL_GAINS
-from tipbot_fw import config, heartbeat, logfile, safety
+from tipbot_fw import config
+from tipbot_fw.guard import heartbeat, safety
+from tipbot_fw.record import logfile
 from tipbot_fw.cues import STOP_WORDS
-from tipbot_fw.feedback import COLOR_NAMES, STATES, stop_state
+from tipbot_fw.io.lights_speaker import COLOR_NAMES, STATES, stop_state
 from tipbot_fw.supervisor import MotorStopper, Watch, _past_hold
 
 pytestmark = pytest.mark.slow   # real processes or long studies: not in make test-fast
@@ -111,9 +113,9 @@ def test_the_watch_sleeps_from_the_calibration_to_the_first_tick(tmp_path):
     # the set-up in between (the core, the start cue, the loop's gc.collect) outlasts the stall
     # timeout on the brick; no motor is driven then
     import fw_support as S
-    from tipbot_fw.clock import VirtualClock
+    from tipbot_fw.io.clock import VirtualClock
     from tipbot_fw.cues import OwnerCues
-    from tipbot_fw.devices import MemoryDevices
+    from tipbot_fw.io.devices import MemoryDevices
     from tipbot_fw.session import run_session
 
     fd, page, words = heartbeat.create_page()

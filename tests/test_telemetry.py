@@ -1,4 +1,4 @@
-"""Live telemetry (tipbot_fw.telemetry): datagrams every few ticks in the loop's slack that decode
+"""Live telemetry (tipbot_fw.record.telemetry): datagrams every few ticks in the loop's slack that decode
 to the log's own values, and a network that never disturbs the loop."""
 import socket
 import struct
@@ -7,15 +7,16 @@ import numpy as np
 import pytest
 
 import fw_support as S
-from tipbot_fw import bench, cli, logfile, telemetry
-from tipbot_fw.clock import VirtualClock
-from tipbot_fw.core import make_core
+from tipbot_fw import bench, cli
+from tipbot_fw.record import logfile, telemetry
+from tipbot_fw.io.clock import VirtualClock
+from tipbot_fw.cores.core import make_core
 from tipbot_fw.cues import OwnerCues
-from tipbot_fw.devices import MemoryDevices
-from tipbot_fw.logfile import read_log
-from tipbot_fw.replay import signals
+from tipbot_fw.io.devices import MemoryDevices
+from tipbot_fw.record.logfile import read_log
+from tipbot_fw.record.replay import signals
 from tipbot_fw.session import run_session
-from tipbot_fw.telemetry import TelemetryError, TelemetrySender, decode
+from tipbot_fw.record.telemetry import TelemetryError, TelemetrySender, decode
 
 
 @pytest.fixture

@@ -12,8 +12,8 @@ import pytest
 import fw_support as S
 from conftest import REPO
 from hostsim.logs import watch
-from tipbot_fw.replay import signals
-from tipbot_fw.logfile import read_log
+from tipbot_fw.record.replay import signals
+from tipbot_fw.record.logfile import read_log
 
 
 def col(header, name):
@@ -25,11 +25,11 @@ RUN = '''
 import os, sys
 sys.path[:0] = [{tests!r}, os.path.dirname({tests!r})]
 import fw_support as S
-from tipbot_fw.clock import VirtualClock
+from tipbot_fw.io.clock import VirtualClock
 from tipbot_fw.cues import OwnerCues
-from tipbot_fw.devices import MemoryDevices
+from tipbot_fw.io.devices import MemoryDevices
 from tipbot_fw.session import run_session
-from tipbot_fw.telemetry import TelemetrySender
+from tipbot_fw.record.telemetry import TelemetrySender
 
 dev = MemoryDevices()
 dev.source = S.moving_readings()

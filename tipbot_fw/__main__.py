@@ -1,6 +1,6 @@
 import sys
 
-from tipbot_fw.safety import SignalGuard, Terminated
+from tipbot_fw.guard.safety import SignalGuard, Terminated
 
 
 def _main():

@@ -4,7 +4,7 @@
 control loop (tipbot_fw.loop, the same code as on the robot) for one start tick and N further
 ticks against MemoryDevices and a virtual clock, as a supervised run does: the heartbeat store
 in a shared page, the readings' plausibility checks, the log's rows written to a file in chunks
-(tipbot_fw.logcontainer; the file is removed at the end), and the side task a run has in its
+(tipbot_fw.record.container; the file is removed at the end), and the side task a run has in its
 slack: the owner's cues (tipbot_fw.cues.LoopCues, without a brick: its checks, not the lights'
 sysfs writes). ``--bare`` leaves the heartbeat page, the encoders' bound from the configuration
 and the file out, to measure what they cost. With --telemetry-every, a telemetry datagram every M ticks goes to a UDP
@@ -13,13 +13,13 @@ imports only tipbot_fw, numpy and the standard library (no ev3dev2), and does
 the same start-up work for every N, so the instruction count of N ticks minus that of 0 ticks,
 divided by N, is the cost of one tick including its log row. The fake devices and the clock
 are C-level callables (bench_devices, FrozenClock), so what is counted is the firmware's own
-work; the real device layer's reads and writes come on top (tipbot_fw.ev3io). ``--whole``
+work; the real device layer's reads and writes come on top (tipbot_fw.io.ev3dev). ``--whole``
 counts what the brick pays for a tick: the same supervised loop with the real device layer on
 plain files (FileDevices) and the real clock (MonotonicClock), its time reads and sleeps
 included (the sleeps' kernel time is not instructions).
 Without --gains it uses the repository's gains/physical.json when there is one, else synthetic
 gains with the structure of the real ones. `--device-layer` instead counts the real device
-layer (tipbot_fw.ev3io: 5 reads, 4 writes per tick) on plain files (FileDevices).
+layer (tipbot_fw.io.ev3dev: 5 reads, 4 writes per tick) on plain files (FileDevices).
 
 brick_bench() is the on-robot benchmark used by `python3 -m tipbot_fw bench`: the time of the
 reads, the compute and the writes of a tick, the whole tick, and a verdict on the period.
@@ -36,21 +36,23 @@ import time
 
 import numpy as np
 
-from tipbot_fw import heartbeat, logfile, slack
-from tipbot_fw.clock import MonotonicClock
-from tipbot_fw import kalman
+from tipbot_fw.guard import heartbeat
+from tipbot_fw.record import logfile
+from tipbot_fw import side_tasks
+from tipbot_fw.io.clock import MonotonicClock
+from tipbot_fw.cores import kalman
 from tipbot_fw.config import defaults
-from tipbot_fw.core import make_core
+from tipbot_fw.cores.core import make_core
 from tipbot_fw.cues import OwnerCues
-from tipbot_fw.devices import MemoryDevices
-from tipbot_fw.drive import drive_problem
-from tipbot_fw.pathfollow import follow_course
-from tipbot_fw.remote import live_plan, remote_side
+from tipbot_fw.io.devices import MemoryDevices
+from tipbot_fw.drive.plan import drive_problem
+from tipbot_fw.drive.pathfollow import follow_course
+from tipbot_fw.drive.remote import live_plan, remote_side
 from tipbot_fw.gains import ACTUATED_INPUTS, N_INPUTS, UNUSED_INPUT, gains_from_dict, load_gains
 from tipbot_fw.loop import ControlLoop
-from tipbot_fw.plausibility import EncoderBound
-from tipbot_fw.safety import SafetyStop
-from tipbot_fw.telemetry import TelemetrySender
+from tipbot_fw.guard.plausibility import EncoderBound
+from tipbot_fw.guard.safety import SafetyStop
+from tipbot_fw.record.telemetry import TelemetrySender
 
 
 def synthetic_gains_doc(A, B, K, ts_s, Q=None, R=None, u_max_v=7.6, detector_pole=0.2,
@@ -186,7 +188,7 @@ def bench_devices():
 
 
 # --drive: a course driven the whole run (forward and back, turning): a tick copies its row of
-# the plan whatever the course (tipbot_fw.drive), so any course costs the same.
+# the plan whatever the course (tipbot_fw.drive.plan), so any course costs the same.
 BENCH_SEGMENT = [(0.02, math.radians(5.0), 1.0), (-0.02, math.radians(-5.0), 1.0)]
 BENCH_REPEATS = 30
 
@@ -208,8 +210,8 @@ def run_memory(n_ticks, gains=None, bare=False, sender=None, whole=False, drive=
     and the real clock (MonotonicClock: its reads of the time and its sleeps) included; the
     overrun stop is off (an emulator may run a tick late). drive: a course's rows, made before the
     run (the tick's cost); follow: made in the slack as a run makes them, corrected from the
-    robot's pose (tipbot_fw.pathfollow: the tick's cost and the follower's, between ticks); remote:
-    driven by a remote's live plan instead (tipbot_fw.remote; a receiver that always has the same
+    robot's pose (tipbot_fw.drive.pathfollow: the tick's cost and the follower's, between ticks); remote:
+    driven by a remote's live plan instead (tipbot_fw.drive.remote; a receiver that always has the same
     command: the plan's rows and the poll, between ticks)."""
     config = defaults()
     if gains is None:
@@ -224,7 +226,7 @@ def run_memory(n_ticks, gains=None, bare=False, sender=None, whole=False, drive=
     elif drive:
         # the same plan whatever n_ticks (tools/tick-cost subtracts a run of 0 ticks: making the
         # plan is start-up, not a tick's cost); a longer run holds its last row. Followed as a run
-        # follows it: its rows made in the slack, corrected from the pose (tipbot_fw.pathfollow)
+        # follows it: its rows made in the slack, corrected from the pose (tipbot_fw.drive.pathfollow)
         follower = follow_course(gains, core, BENCH_SEGMENT * BENCH_REPEATS, None if follow else n_ticks + 2)
     extra = {}
     writer = None
@@ -249,7 +251,7 @@ def run_memory(n_ticks, gains=None, bare=False, sender=None, whole=False, drive=
                        battery_period_s=config['battery_period_s'],
                        overrun_window_s=config['limits']['overrun_window_s'],
                        duration_s=(n_ticks + 1) * gains.ts_s, realtime_priority=0, **extra)
-    loop.side = slack.combine(OwnerCues(streams=()).in_loop(loop, config['limits']['warn_battery_v']),
+    loop.side = side_tasks.combine(OwnerCues(streams=()).in_loop(loop, config['limits']['warn_battery_v']),
                               sender.attach(log, loop.stats, core) if sender else None,
                               follower.side() if follow else None,
                               remote_side(_SteadyReceiver(), live, gains.ts_s) if remote else None)
@@ -386,13 +388,13 @@ REPO_GAINS = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file
 
 
 class FileDevices(object):
-    """tipbot_fw.ev3io.Ev3Devices on plain files laid out as the sysfs attributes it opens, for
+    """tipbot_fw.io.ev3dev.Ev3Devices on plain files laid out as the sysfs attributes it opens, for
     counting the device layer's own instructions per tick (python-ev3dev2's discovery is
     skipped: the virtual brick has no ev3dev2, and discovery is not part of a tick)."""
 
     def __init__(self, root):
         from tipbot_fw.config import defaults as config_defaults
-        from tipbot_fw.ev3io import BATTERY_PATH, Ev3Devices, SysfsDevices, device_spec
+        from tipbot_fw.io.ev3dev import BATTERY_PATH, Ev3Devices, SysfsDevices, device_spec
         config = config_defaults()
         motors, gyro, stop_action = device_spec(config)
         paths = {}

@@ -180,7 +180,7 @@ def gains_from_dict(doc, source='<gains>', sha256=None, expected_ts_s=None, chec
 # Scalars: field -> (lo, hi, unit, why), checked before anything uses them.
 SCALAR_BOUNDS = {
     'ts_s': (0.001, 0.050, 's', 'a loop period of 1 to 50 ms (the brick cannot tick faster; slower does not balance)'),
-    'u_max_v': (1.0, 11.0, 'V', 'a motor voltage limit an EV3 battery can give (tipbot_fw.plausibility)'),
+    'u_max_v': (1.0, 11.0, 'V', 'a motor voltage limit an EV3 battery can give (tipbot_fw.guard.plausibility)'),
 }
 # Matrices, in SI after the unit conversion: field -> largest |entry| a design of this robot can
 # have, and why. 10 to 100 times what the committed designs have: a relabelled unit (x100) or a
@@ -229,7 +229,7 @@ def _kalman_check(check):
 
 
 def _kalman_measures(g, k):
-    from tipbot_fw.kalman import measurement_matrix    # here: tipbot_fw.kalman imports this module
+    from tipbot_fw.cores.kalman import measurement_matrix    # here: tipbot_fw.cores.kalman imports this module
     if np.max(np.abs(k.C - measurement_matrix(k.n, k.wheel_radius_m, k.n - k.n_filter))) > \
             _ZERO_RTOL * max(1.0, 1.0 / k.wheel_radius_m):
         return ('must measure [d/R_w - th1 (2), th2, th3, th1_dot + gyro_bias] with R_w = '
@@ -276,7 +276,7 @@ def _kalman_wheel(g, k):
 
 
 def _kalman_fold(g, k):
-    from tipbot_fw.kalman import fold
+    from tipbot_fw.cores.kalman import fold
     ref = fold(k.A, k.B, k.C, k.L, k.K, k.wheel_radius_m, k.n - k.n_filter)
     err = np.abs(k.law_M - ref) / np.maximum(1e-300, np.abs(ref).max(axis=1, keepdims=True))
     if np.max(err) > _LAW_RTOL:
@@ -394,13 +394,13 @@ def load_gains(path, expected_ts_s=None):
 
 
 # ---------------------------------------------------------------------------------------------
-# The Kalman block (schema 2): the firmware's default estimator (tipbot_fw.kalman), SI units.
+# The Kalman block (schema 2): the firmware's default estimator (tipbot_fw.cores.kalman), SI units.
 KALMAN_KEYS = ('state_names', 'state_units', 'measurement_names', 'measurement_units', 'wheel_radius_m',
                'A', 'B', 'C', 'L', 'K', 'law', 'noise')
 _X_NAMES = ('d_r', 'd_l', 'th1', 'th2', 'th3', 'd_r_dot', 'd_l_dot', 'th1_dot', 'th2_dot', 'th3_dot')
 _X_UNITS = ('m', 'm', 'rad', 'rad', 'rad', 'm/s', 'm/s', 'rad/s', 'rad/s', 'rad/s')
 _W_NAMES = ('w_r', 'w_l', 'w_th2', 'w_th3')
-# the law's integrators of the wheel positions (tipbot_fw.kalman, "Integral action"), optional:
+# the law's integrators of the wheel positions (tipbot_fw.cores.kalman, "Integral action"), optional:
 # the last states of a Kalman block that has them
 INTEGRATOR_NAMES = ('z_r', 'z_l')
 

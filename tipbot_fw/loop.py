@@ -1,7 +1,7 @@
 """The fixed-period control loop: timing, the tick pipeline, housekeeping, overrun policy.
 
 Tick pipeline: read raw -> plausibility of the readings -> heartbeat -> the core (estimate,
-control, saturation, duty, log row: tipbot_fw.core) -> write duties -> the row's time columns.
+control, saturation, duty, log row: tipbot_fw.cores.core) -> write duties -> the row's time columns.
 A control tick does exactly one read_raw (5 sysfs reads) and one write_duties (at most 4 writes).
 
 Timing: tick k is released at t0 + k * period, the deadline advanced by exactly one period each
@@ -20,8 +20,8 @@ ticks and is stopped within a window. The bookkeeping runs only in a late tick: 
 pays one comparison, as before.
 
 Each tick stores its index in the heartbeat page the supervisor watches (one store, no system
-call: tipbot_fw.heartbeat), and compares the readings with what the hardware can report
-(tipbot_fw.plausibility: a gyro rate beyond +-440 deg/s, an encoder jump beyond the motor's
+call: tipbot_fw.guard.heartbeat), and compares the readings with what the hardware can report
+(tipbot_fw.guard.plausibility: a gyro rate beyond +-440 deg/s, an encoder jump beyond the motor's
 reach at the nominal period; only when that cheap test fails is the exact one, with the time
 since the previous read, made). That check is also what keeps the wheels' count changes within
 the core's max_count_step (the Kalman core's fixed-point range): the core does not check again.
@@ -30,7 +30,7 @@ Between ticks, after the tick's writes and its overrun bookkeeping, in this orde
 rows, written to the file in whole chunks (logfile.CHUNK_ROWS, on the grid of chunks: the slots
 of the file's ring of a long run's last rows; no fsync in the loop); the battery
 (about once a second: its plausibility, and whether the supervisor is still there); the side
-task (tipbot_fw.slack: lights, tones, telemetry). Each runs in the first tick, from the one it
+task (tipbot_fw.side_tasks: lights, tones, telemetry). Each runs in the first tick, from the one it
 is due in, that leaves at least SLACK_S (SLACK_FRACTION of a shorter period) before the next
 release, so that none of them makes a tick late. What cannot wait any longer runs at once: the
 rows when the ring in memory is about to be overwritten, the battery when it is a whole battery
@@ -44,12 +44,12 @@ Motors are not stopped here: the caller (tipbot_fw.session) stops them in its fi
 import collections
 import gc
 
-from tipbot_fw import logfile
-from tipbot_fw.heartbeat import NOT_SUPERVISED
-from tipbot_fw.realtime import ask_fifo
-from tipbot_fw.plausibility import GYRO_MAX_DPS, EncoderBound, check_battery
+from tipbot_fw.record import logfile
+from tipbot_fw.guard.heartbeat import NOT_SUPERVISED
+from tipbot_fw.guard.realtime import ask_fifo
+from tipbot_fw.guard.plausibility import GYRO_MAX_DPS, EncoderBound, check_battery
 from tipbot_fw.config import MAX_STALL_S
-from tipbot_fw.safety import DeviceFailure, FallDetected, JointLimit, OverrunLimit, Terminated, watchdog_stop
+from tipbot_fw.guard.safety import DeviceFailure, FallDetected, JointLimit, OverrunLimit, Terminated, watchdog_stop
 
 # What a tick must leave before the next release for the work between ticks (a chunk of log rows
 # is a copy, a CRC-32 and a pwrite; the battery one sysfs read, 0.3-0.45 ms on the brick), or
@@ -61,7 +61,7 @@ SLACK_FRACTION = 0.3
 # a quarter of the realistic brick's ticks leave SLACK_S, and cues came up to 0.14 s late.
 SIDE_WAIT_S = 0.05
 # How often the law's integrators are kept within their limit (KalmanCore.wind_down): the
-# fixed-point range of the integrators is what they can gain in this long (tipbot_fw.kalman,
+# fixed-point range of the integrators is what they can gain in this long (tipbot_fw.cores.kalman,
 # "Integral action"), whatever the battery's reading period
 WIND_DOWN_S = 1.0
 
@@ -109,8 +109,8 @@ class ControlLoop(object):
     battery_v: the voltage read before start (re-read every battery_period_s); duration_s:
     stop after that many periods' worth of ticks (None: run until stopped); realtime_priority:
     SCHED_FIFO priority to ask for during the run (0: don't); heartbeat: the supervisor's page
-    (tipbot_fw.heartbeat); encoder_bound: a plausibility.EncoderBound (None: only the gyro's
-    bound is checked); side: a side task (tipbot_fw.slack) or None, settable until run();
+    (tipbot_fw.guard.heartbeat); encoder_bound: a plausibility.EncoderBound (None: only the gyro's
+    bound is checked); side: a side task (tipbot_fw.side_tasks) or None, settable until run();
     overrun_window_s, max_lost_s, max_stall_s: the overrun stop (the module's docstring);
     on_scheduling: called with one line saying which scheduling the run got, before the first tick.
     """

@@ -10,7 +10,7 @@ calibration, why it stopped). Every column name carries its unit (``y_th1_rad``,
 motor identification) exports: the columns are the log's own (docs/log-format.md). A balance
 run of the Kalman core, whose rows hold raw readings and the filter's carried state, gets the
 physical columns of the detector's logs after its own, rebuilt as the replay rebuilds them
-(tipbot_fw.replay.signals, with the gains the run used, found as `hostsim replay` finds them,
+(tipbot_fw.record.replay.signals, with the gains the run used, found as `hostsim replay` finds them,
 or --gains): the estimate ``xt_*`` (x^), the disturbance estimate ``w_*``, the applied inputs
 ``u_*``, the law's output before rounding and saturation ``u_cmd_*`` and the filter's gyro bias
 ``gyro_bias`` (deg/s, as the sensor reads). Exit status 0, or 2 with a one-line message when
@@ -27,7 +27,7 @@ import numpy as np
 
 from hostsim.errors import TipbotError
 from hostsim.logs import read_log
-from tipbot_fw import logfile, replay as fw_replay
+from tipbot_fw.record import logfile, replay as fw_replay
 from tipbot_fw.gains import ACTUATED_INPUTS, GainsError, load_gains
 
 # unit -> what a column name gets appended (None: nothing)

@@ -4,7 +4,7 @@
     (also: make replay LOG=... [GAINS=...])
 
 The logged raw readings (encoder counts, gyro angle and rate, battery voltage) go through
-tipbot_fw.replay, i.e. the very core the robot ran (tipbot_fw.core: the Kalman filter, or the
+tipbot_fw.record.replay, i.e. the very core the robot ran (tipbot_fw.cores.core: the Kalman filter, or the
 paper's detector), and what comes out is compared with what the robot logged:
 
 * with the gains the robot ran (found by the sha256 the log records: --logged-gains, then
@@ -33,12 +33,12 @@ import hostsim
 import numpy as np
 
 import tipbot_fw
-from tipbot_fw import logfile
-from tipbot_fw import replay as fw_replay
+from tipbot_fw.record import logfile
+from tipbot_fw.record import replay as fw_replay
 from tipbot_fw import fields
 from tipbot_fw.config import ConfigError, config_from_overrides
 from tipbot_fw.gains import ACTUATED_INPUTS, SCALAR_BOUNDS, GainsError, load_gains
-from tipbot_fw.plausibility import BATTERY_MAX_V, BATTERY_MIN_V
+from tipbot_fw.guard.plausibility import BATTERY_MAX_V, BATTERY_MIN_V
 
 from hostsim.errors import TipbotError
 from hostsim.logs import read_log
@@ -286,7 +286,7 @@ def replay_rows(header, rows, gains, as_logged=True):
     except (KeyError, TypeError, IndexError, AttributeError) as e:
         written_by = header.get("versions", {}).get("tipbot_fw", "?")
         if written_by == tipbot_fw.__version__:
-            raise ReplayError("tipbot_fw.replay failed on this log, although the log says it was written by "
+            raise ReplayError("tipbot_fw.record.replay failed on this log, although the log says it was written by "
                               "this version (%s): %s: %s. Either the log comes from a development state of "
                               "that version with another header, or this is a bug: report it with the log"
                               % (written_by, type(e).__name__, e))

@@ -6,7 +6,7 @@
     (make watch HOST=... starts a run on the brick with its telemetry pointed here)
 
 Listens for the datagrams of `python3 -m tipbot_fw run --telemetry HOST:PORT` (UDP, decoded by
-tipbot_fw.telemetry: docs/telemetry.md) and shows the last --window seconds: the controller's
+tipbot_fw.record.telemetry: docs/telemetry.md) and shows the last --window seconds: the controller's
 estimates of the link angles and wheel displacements (the Kalman filter's x^, or the
 detector's x~), the inputs, the disturbance estimate and the tick's duration with the overruns; the
 title says the battery, the datagram rate and how many were lost on the way (gaps in their
@@ -30,7 +30,7 @@ import sys
 import time
 
 import hostsim
-from tipbot_fw import logfile, telemetry
+from tipbot_fw.record import logfile, telemetry
 
 from hostsim.errors import TipbotError
 from hostsim.logs.export import csv_header, format_value

@@ -172,7 +172,7 @@ def robust_design(variant, params, ts_s, a, b, q, r, e_mat, noise=None):
     return dict(plain, margins=uncertainty.margins(plain["kalman"]))
 
 
-# Integral action on the wheel positions (tipbot_fw.kalman, "Integral action"), in the designs
+# Integral action on the wheel positions (tipbot_fw.cores.kalman, "Integral action"), in the designs
 # that are ours (the paper's variant keeps the paper's law): the integral's weight is the wheel
 # position's, spread over INTEGRAL_TIME_S (Bryson: a position error of 1 cm held that long costs
 # as much as 1 cm), so the integrators take out an offset in a few times that, slower than the
@@ -288,7 +288,7 @@ def with_law(doc, k_file=None, k_w=None, note=""):
     block's K_a and folded law follow (the filter itself is unchanged). For baselines and
     diagnoses (the PD baseline, K_w = 0), not for the robot."""
     from tipbot_fw.gains import gains_from_dict
-    from tipbot_fw.kalman import fold
+    from tipbot_fw.cores.kalman import fold
     out = json.loads(json.dumps(doc))
     if k_file is not None:
         out["K"] = np.asarray(k_file, dtype=float).tolist()

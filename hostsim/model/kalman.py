@@ -37,7 +37,7 @@ import scipy.linalg
 
 from hostsim.errors import DesignError
 from hostsim.model import design
-from tipbot_fw import kalman as fw_kalman
+from tipbot_fw.cores import kalman as fw_kalman
 from tipbot_fw.gains import ACTUATED_INPUTS, INTEGRATOR_NAMES
 
 N_X = 10
@@ -60,7 +60,7 @@ ENCODER_COUNTS_PER_ROT = 360
 
 
 # The unit of the law's integrators of the wheel positions (tipbot_fw.gains.INTEGRATOR_NAMES,
-# after the filter's states where a design has them: tipbot_fw.kalman, "Integral action").
+# after the filter's states where a design has them: tipbot_fw.cores.kalman, "Integral action").
 INTEGRAL_UNIT = "m s"
 # The integrators' authority: at their limit they ask at most this share of u_max of a motor (the
 # rest for balancing and driving); a tilt estimate 0.02 rad off (a start a degree off upright)
@@ -228,6 +228,8 @@ class IntegralLaw:
     u_max_v: float
 
     def document(self):
+        # (the text names the module as the committed gains files do: regenerated files stay identical;
+        # the core is tipbot_fw/cores/kalman.py)
         return {"states": list(INTEGRATOR_NAMES), "limit_m_s": self.limit_m_s, "share_of_u_max": INTEGRAL_SHARE,
                 "why": "z = integral of (d^ - d_ref) of each wheel (tipbot_fw.kalman, 'Integral action'); the "
                        "LQR's integral weight is the wheel position's over hostsim.model.gains.INTEGRAL_TIME_S; "
@@ -244,7 +246,7 @@ def integral_law(k_z, u_max_v):
 
 def with_integrators(aa, ba, ca, gain, ts_s):
     """The filter's (A_a, B_a, C_a, L) with the law's integrators of the wheel positions after its
-    states (tipbot_fw.kalman, "Integral action"): z_k = z_{k-1} + ts d^_k, so A's and B's rows of
+    states (tipbot_fw.cores.kalman, "Integral action"): z_k = z_{k-1} + ts d^_k, so A's and B's rows of
     z are ts times d's (the prediction d-_k), L's ts times d's (the update to d^_k), C blind to z."""
     a, b = design.integrator_model(aa, ba, ts_s)         # the LQR's model with its integrators
     c = np.hstack([ca, np.zeros((ca.shape[0], len(INTEGRATOR_NAMES)))])
@@ -292,7 +294,7 @@ class KalmanDesign:
         return np.linalg.eigvals((np.eye(nf) - self.L[:nf] @ self.C[:, :nf]) @ self.A[:nf, :nf])
 
     def folded_law(self):
-        """The tick as one matrix (tipbot_fw.kalman): rows [u_k (4), xi_k (n)], columns
+        """The tick as one matrix (tipbot_fw.cores.kalman): rows [u_k (4), xi_k (n)], columns
         [u_{k-1} (4, applied volts), xi_{k-1} (n), dphi_r, dphi_l, m_k (5, SI)]."""
         return fw_kalman.fold(self.A, self.B, self.C, self.L, self.K, self.rw_m, self.n - self.n_filter)
 
@@ -320,7 +322,7 @@ class KalmanDesign:
         }
 
 
-# Ranges of the carried state for the fixed-point law (tipbot_fw.fixedpoint): far beyond what
+# Ranges of the carried state for the fixed-point law (tipbot_fw.cores.fixedpoint): far beyond what
 # a standing robot reaches, so that no sum can overflow; their resolution is bound / 2^32.
 STATE_BOUNDS = {"d_r": 1.0, "d_l": 1.0, "th1": 4.0, "th2": 4.0, "th3": 4.0, "d_r_dot": 20.0, "d_l_dot": 20.0,
                 "th1_dot": 200.0, "th2_dot": 200.0, "th3_dot": 200.0, "w": 100.0, "gyro_bias": 1.0, "z": 2.0 ** 15}

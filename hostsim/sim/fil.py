@@ -4,7 +4,7 @@ The firmware's session (calibration, loop, safety, log) runs as on the brick, wi
 ``VirtualClock``: whenever it sleeps, the simulated world catches up to the wake-up time.
 The world is the nonlinear plant (hostsim.world.plant), the sensor models (hostsim.world.sensors) and,
 with ``sysfs=True``, the fake EV3 tree read and written by the firmware's real device layer
-(tipbot_fw.ev3io); with ``sysfs=False`` an in-memory device (faster, for Monte Carlo).
+(tipbot_fw.io.ev3dev); with ``sysfs=False`` an in-memory device (faster, for Monte Carlo).
 
 Timing model, per tick of period ts: the firmware reads the sensors at the tick's start,
 its duties take effect ``io_latency_s`` later (the rest of the reads and the compute on the
@@ -35,7 +35,7 @@ the linear simulation, as on the robot:
   angle phi_rel from its first reading and sets d = R_w (phi_rel + th1) with the tilt it is
   told, so it starts at d = R_w th1(0) whatever the scenario's d(0). It regulates its d to
   0, i.e. the plant's d to ``d_origin_m`` = d(0) - R_w th1(0). Results (x, and the
-  firmware's estimates from its log, tipbot_fw.replay.signals, shifted by that offset) are in
+  firmware's estimates from its log, tipbot_fw.record.replay.signals, shifted by that offset) are in
   the scenario's frame; metrics measure the final displacement from d_origin_m.
 """
 import math
@@ -57,19 +57,19 @@ from hostsim.world.plant import Plant, apply_push
 from hostsim.sim.scenario import disturbance_at, firmware_overrides, merged_fields, scenario_load
 from hostsim.world.sensors import BatteryModel, EncoderModel, SensorModel
 from tipbot_fw import config as fw_config
-from tipbot_fw import logfile
-from tipbot_fw import replay as fw_replay
+from tipbot_fw.record import logfile
+from tipbot_fw.record import replay as fw_replay
 from tipbot_fw.calibration import sample_counts
-from tipbot_fw.course import CourseError, parse_course
-from tipbot_fw.clock import VirtualClock
+from tipbot_fw.drive.course import CourseError, parse_course
+from tipbot_fw.io.clock import VirtualClock
 from tipbot_fw.cues import QUIET as QUIET_CUES
 from tipbot_fw.cues import OwnerCues
-from tipbot_fw.devices import MemoryDevices
-from tipbot_fw.drive import drive_problem
-from tipbot_fw.feedback import BrickSignals
+from tipbot_fw.io.devices import MemoryDevices
+from tipbot_fw.drive.plan import drive_problem
+from tipbot_fw.io.lights_speaker import BrickSignals
 from tipbot_fw.config import MOTOR_ROLES
 from tipbot_fw.gains import ACTUATED_INPUTS, gains_from_dict, load_gains
-from tipbot_fw.safety import DevicesMissing
+from tipbot_fw.guard.safety import DevicesMissing
 from tipbot_fw.session import log_refused_start, open_log, run_session
 
 DEFAULT_IO_LATENCY_S = 0.002
@@ -271,7 +271,7 @@ def run_firmware(sc, gains_path=None, gains_doc=None, sysfs=True, log_path=None,
     fake = None
     if sysfs:
         from hostsim.world.fake_ev3 import FakeEV3
-        from tipbot_fw.ev3io import Ev3Devices
+        from tipbot_fw.io.ev3dev import Ev3Devices
         fake = FakeEV3(battery_v=s.battery_v, gyro_mode_write_s=brick.gyro_mode_write_s,
                        gyro_mode_timeout=brick.gyro_mode_timeout)
     if brick.ideal:
@@ -404,7 +404,7 @@ def _world_side(world):
 
 
 def _firmware_side(header, rows, gains, d_origin, n):
-    """The firmware's own view from its log (tipbot_fw.replay.signals), tick k <-> plant sample k
+    """The firmware's own view from its log (tipbot_fw.record.replay.signals), tick k <-> plant sample k
     (NaN for the ticks a long run's bounded log did not keep, and after its last row)."""
     ticks = logfile.tick_indices(header, len(rows))
     dense = np.full((min(n, int(ticks[-1]) + 1 if len(ticks) else 0), rows.shape[1]), np.nan)

@@ -27,7 +27,7 @@ class RunResult:
     exit_code: Optional[int] = None
     stop_reason: Optional[str] = None
     header: Optional[dict] = None        # its log's header
-    flags: Optional[np.ndarray] = None   # its log's flag bits per tick (tipbot_fw.logfile.FLAG_BITS)
+    flags: Optional[np.ndarray] = None   # its log's flag bits per tick (tipbot_fw.record.logfile.FLAG_BITS)
     tick_work_s: Optional[np.ndarray] = None  # its log's tick_s: a tick's start to the end of its writes
     io_per_iteration: Optional[list] = None  # sysfs runs: the device layer's (op, path, bytes) per loop
     duty_events: Optional[list] = None   # brick worlds: (t from release, motor, duty fraction) applied

@@ -42,8 +42,8 @@ from hostsim.model.params import REQUIRED
 from hostsim.paths import REPO_ROOT
 from tipbot_fw import config as fw_config
 from tipbot_fw import fields
-from tipbot_fw.course import CourseError, parse_course
-from tipbot_fw.plausibility import BATTERY_MAX_V, BATTERY_MIN_V
+from tipbot_fw.drive.course import CourseError, parse_course
+from tipbot_fw.guard.plausibility import BATTERY_MAX_V, BATTERY_MIN_V
 
 SCENARIO_DIR = os.path.join(REPO_ROOT, "scenarios")
 

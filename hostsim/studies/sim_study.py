@@ -76,7 +76,7 @@ def firmware_note(docs, mc):
     estimator = defaults()["estimator"]
     lines = ["The firmware runs its default estimator, %s; the linear and nonlinear modes run the paper's law "
              "(the Section 6 detector fed the exact state)." % (
-                 "the Kalman filter (tipbot_fw.kalman: it measures what the sensors measure and estimates the "
+                 "the Kalman filter (tipbot_fw.cores.kalman: it measures what the sensors measure and estimates the "
                  "wheels' input disturbances and the gyro bias)" if estimator == "kalman" else
                  "the paper's detector on the firmware's signal chain")]
     fell = [(d["scenario"], l) for d in docs for l, m in d["runs"].items()

@@ -47,7 +47,7 @@ import numpy as np
 
 from hostsim.model.motors import TABLE2, TABLE2_DRIVER, MotorParams
 from hostsim.world.fake_ev3 import FakeEV3
-from tipbot_fw.clock import VirtualClock
+from tipbot_fw.io.clock import VirtualClock
 
 DEFAULT_BATTERY_V = 8.0
 DEFAULT_BATTERY_R_OHM = 0.1

@@ -1,6 +1,6 @@
 """Sensor models: the plant's state -> the raw integers the EV3 devices would report.
 
-Raw means what tipbot_fw.devices passes on untouched: encoder counts as each encoder counts
+Raw means what tipbot_fw.io.devices passes on untouched: encoder counts as each encoder counts
 them, the gyro in its own frame. The signal chain undoes the mounting with the configured
 polarities and gyro sign, so ``motor_signs`` and ``gyro_sign`` here are the physical facts those
 config fields must match.

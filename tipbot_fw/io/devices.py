@@ -31,7 +31,7 @@ class Devices(object):
     def close(self):
         pass
 
-    # The EV3 IR remote, when the configuration has one (tipbot_fw.ir_remote): (port, channel),
+    # The EV3 IR remote, when the configuration has one (tipbot_fw.drive.ir_remote): (port, channel),
     # and read_ir_remote() -> its button code, an int (read outside the tick).
     ir_remote = None
 

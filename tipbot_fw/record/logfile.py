@@ -1,9 +1,9 @@
 """Run log: the rows of each control core (their layout in memory and the columns of the file),
 per-tick rows in a preallocated ring, written to the file in chunks in the loop's slack
 (docs/log-format.md). The container (records, CRCs, reading a log cut short) is
-tipbot_fw.logcontainer.
+tipbot_fw.record.container.
 
-Two row layouts, one per core (tipbot_fw.core): DetectorRows (the paper's detector: the floats
+Two row layouts, one per core (tipbot_fw.cores.core): DetectorRows (the paper's detector: the floats
 the core computes) and KalmanRows (the Kalman core: raw readings and the integer state, packed
 once). Each has its memory row (mem_names, row_bytes, flags_index), the file's columns and
 to_file(), which makes the second from the first; the file stores the memory rows as they are
@@ -17,8 +17,9 @@ import time
 
 import numpy as np
 
-from tipbot_fw import fixedpoint, logcontainer
-from tipbot_fw.logcontainer import FORMAT_VERSION, MAGIC, LogFormatError, LogWriteError, LogWriter  # noqa: F401
+from tipbot_fw.cores import fixedpoint
+from tipbot_fw.record import container
+from tipbot_fw.record.container import FORMAT_VERSION, MAGIC, LogFormatError, LogWriteError, LogWriter  # noqa: F401
 
 STATE_NAMES = ('d_r', 'd_l', 'th1', 'th2', 'th3', 'd_r_dot', 'd_l_dot', 'th1_dot', 'th2_dot', 'th3_dot')
 STATE_UNITS = ('m', 'm', 'rad', 'rad', 'rad', 'm/s', 'm/s', 'rad/s', 'rad/s', 'rad/s')
@@ -60,7 +61,7 @@ DUTY = col('duty_r')        # 4 columns
 FLAGS = col('flags')
 
 # In-memory row layout, chosen so that the core fills a row with one struct pack and two byte
-# copies (tipbot_fw.core): duties are the device's (polarity applied), dcmd are the commands
+# copies (tipbot_fw.cores.core): duties are the device's (polarity applied), dcmd are the commands
 # before saturation in the same units, and the always-zero th1 inputs are left out.
 # to_file_layout() derives the file's volts from them (u = polarity * duty * battery_v / 100)
 # and the times (the loop stores clock readings, cheaper than differences).
@@ -115,7 +116,7 @@ def to_file_layout(mem_rows, polarity, t0=0.0):
 
 
 class DetectorRows(object):
-    """The detector core's log row (tipbot_fw.detector_core): MEM_NAMES in memory, COLUMNS in the
+    """The detector core's log row (tipbot_fw.cores.detector_core): MEM_NAMES in memory, COLUMNS in the
     file (to_file_layout)."""
     estimator = 'detector'
     mem_names = MEM_NAMES
@@ -149,16 +150,16 @@ def kalman_columns(state_names, state_units):
             + [('xi_' + s, u) for s, u in zip(state_names, state_units)])
 
 
-# The Kalman core's drive reference (tipbot_fw.kalman, tipbot_fw.drive): the file's columns
+# The Kalman core's drive reference (tipbot_fw.cores.kalman, tipbot_fw.drive.plan): the file's columns
 # after the state's; a log of a firmware before it has none.
 REFERENCE_COLUMNS = (('ref_d_r', 'm'), ('ref_d_l', 'm'), ('ref_v_r', 'm/s'), ('ref_v_l', 'm/s'),
                      ('ref_a_r', 'm/s^2'), ('ref_a_l', 'm/s^2'))
 
 
 class KalmanRows(object):
-    """The Kalman core's log row (tipbot_fw.kalman; docs/log-format.md). In memory: the two clock
+    """The Kalman core's log row (tipbot_fw.cores.kalman; docs/log-format.md). In memory: the two clock
     readings, battery_v, flags, gyro_angle as float64, then int64s: the duties, the carried state
-    xi (xi_j 2^q_j: q, the state_exponents of tipbot_fw.fixedpoint) and the product's inputs
+    xi (xi_j 2^q_j: q, the state_exponents of tipbot_fw.cores.fixedpoint) and the product's inputs
     (the wheels' count changes, the four counts from their zeros, the gyro's raw rate): one copy
     of the core's integer vector, and the drive reference's integers (has_reference; ref_lsb: SI
     per integer, set by the core). In the file: the raw counts, the duties, xi and the reference in SI.
@@ -185,7 +186,7 @@ class KalmanRows(object):
         self.has_reference = has_reference
         self.ref_lsb = ref_lsb
         self.columns = kalman_columns(self.state_names, self.state_units)
-        if has_reference:       # after the product's constant input (tipbot_fw.kalman)
+        if has_reference:       # after the product's constant input (tipbot_fw.cores.kalman)
             self.mem_names += ['one'] + [name for name, _ in REFERENCE_COLUMNS]
             self.columns += list(REFERENCE_COLUMNS)
         self.row_bytes = 8 * len(self.mem_names)
@@ -276,7 +277,7 @@ def layout_from_header(header):
 # (0.25 s at 5 ms), so a crash or a power cut loses at most that much of what the file had
 # been sent; the ring in memory holds RING_CHUNKS chunks, so a chunk may wait for a tick with
 # slack (tipbot_fw.loop) without being overwritten. A chunk is also the slot of the file's ring
-# (tipbot_fw.logcontainer): a long run's file keeps its head and its last chunks.
+# (tipbot_fw.record.container): a long run's file keeps its head and its last chunks.
 CHUNK_ROWS = 50
 RING_CHUNKS = 8
 
@@ -303,7 +304,7 @@ class LogBuffer(object):
     TIMES) into the bytearray `data` at byte offset (k % capacity) * rows.row_bytes; `mem` is a
     float64 view of the same memory. The loop keeps `count` (rows ever stored).
 
-    With a ``writer`` (a tipbot_fw.logcontainer.LogWriter, which decides what the file keeps:
+    With a ``writer`` (a tipbot_fw.record.container.LogWriter, which decides what the file keeps:
     its ``keep``), the rows go to the file in whole chunks: flush() writes the rows not yet
     written, so the ring needs only a few chunks; without one the ring keeps the newest
     ``capacity`` rows (bench, tests).
@@ -436,8 +437,8 @@ def read_log(path):
     """-> (header, rows in the file layout of the log's core). A run log whose file stores memory
     rows (format 2) is converted here with the layout its header describes (the core, the
     polarities or the fixed-point format, the encoder zeros) and its log_t0, so every reader
-    sees the columns of docs/log-format.md. LogFormatError as logcontainer.read_log."""
-    header, rows = logcontainer.read_log(path)
+    sees the columns of docs/log-format.md. LogFormatError as container.read_log."""
+    header, rows = container.read_log(path)
     if header.get('layout') == STORED_LAYOUT:
         names = [c.get('name') if isinstance(c, dict) else c for c in header['columns']]
         try:
@@ -456,5 +457,5 @@ def read_log(path):
 
 def write_log(path, header, rows, nrows=None, columns=COLUMNS):
     """Write a whole log at once (tests, the identify log): header, then rows (an n x ncols array,
-    or with nrows an iterable of such blocks), in the container of tipbot_fw.logcontainer."""
-    logcontainer.write_log(path, header, rows, columns)
+    or with nrows an iterable of such blocks), in the container of tipbot_fw.record.container."""
+    container.write_log(path, header, rows, columns)

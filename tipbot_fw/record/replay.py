@@ -3,20 +3,20 @@ the log go in, the rows that come out must equal the logged ones (time columns e
 
 The Kalman core (the default) computes in integers: its replay is bit-exact on any machine
 (its integer matrix is built from the gains file's decimals by elementwise IEEE-754 operations
-in a fixed order, tipbot_fw.fixedpoint). The detector core computes in float64: bit-exact on
+in a fixed order, tipbot_fw.cores.fixedpoint). The detector core computes in float64: bit-exact on
 the machine that wrote the log, within the last bits across machines (docs/log-format.md).
 
 signals() turns the rows of either core into the estimates and inputs in SI, for plots,
 metrics, the export and the simulator (host tools); the telemetry decoder
-(tipbot_fw.telemetry.decode) computes the same values, with the same arithmetic, from a
+(tipbot_fw.record.telemetry.decode) computes the same values, with the same arithmetic, from a
 datagram.
 """
 import numpy as np
 
-from tipbot_fw import logfile
-from tipbot_fw.core import make_core, row_layout
+from tipbot_fw.record import logfile
+from tipbot_fw.cores.core import make_core, row_layout
 from tipbot_fw.gains import ACTUATED_INPUTS
-from tipbot_fw.kalman import wheel_m_per_count
+from tipbot_fw.cores.kalman import wheel_m_per_count
 
 
 def core_from_header(header, gains, check_gains=True):
@@ -152,7 +152,7 @@ def signals(header, rows, gains):
     out = {'x_hat': x[:, :10], 'w_hat': w_hat, 'u': u, 'u_cmd': u_cmd, 'gyro_bias': x[:, kal.n_filter - 1]}
     if 'ref_d_r' in names:
         # driving: u = -K_a (x^ - x_ref) + u_ff = -K_a x^ + K_a's wheel columns d_ref + G r
-        # (tipbot_fw.kalman, "Driving"); the reference as the log has it
+        # (tipbot_fw.cores.kalman, "Driving"); the reference as the log has it
         ref = np.column_stack([rows[:, col(c)] for c, _ in logfile.REFERENCE_COLUMNS])
         extra = ref[:, 0:2].dot(kal.K[:, 0:2].T)
         if kal.reference is not None:

@@ -168,7 +168,7 @@ class SignalGuard(object):
     SIGHUP: a run started over ssh gets it when the connection drops; SIGQUIT is Ctrl-\\ on the
     terminal; their default actions would kill the process with the motors still running.
 
-    ``heartbeat`` (tipbot_fw.heartbeat) tells a SIGTERM from the supervisor after a stall
+    ``heartbeat`` (tipbot_fw.guard.heartbeat) tells a SIGTERM from the supervisor after a stall
     ('watchdog') and the parent-death signal of a dead supervisor ('supervisor_gone') from an
     owner's SIGTERM.
 

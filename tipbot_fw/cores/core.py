@@ -4,9 +4,9 @@ The loop on the brick and a replay on the host call the very same methods with t
 numbers, so a replay of a log reproduces the robot's computation. Two cores, chosen by the
 configuration's `estimator`:
 
-- `kalman` (the default): tipbot_fw.kalman.KalmanCore, the steady-state Kalman filter and the
+- `kalman` (the default): tipbot_fw.cores.kalman.KalmanCore, the steady-state Kalman filter and the
   LQR law in fixed point (the gains file's `kalman` block);
-- `detector`: tipbot_fw.detector_core.DetectorCore, the paper's signal chain, Section 6 robust
+- `detector`: tipbot_fw.cores.detector_core.DetectorCore, the paper's signal chain, Section 6 robust
   detector and law, for reproducing the paper.
 
 Both offer: set_gyro_bias(bias_dps) after the calibration; set_battery(battery_v) before the
@@ -17,7 +17,7 @@ skip(periods) after a tick the loop was late from, with the whole periods it mis
 Kalman core predicts through them with the duties held; a replay calls it from the log's
 flags); wind_down() once a second outside the ticks (the Kalman core keeps its law's integrators
 within their limit; True if it changed them, which the log's flags record for the replay); restore(file_row, encoder_offsets) to continue from a logged row; `rows`, the row layout
-(tipbot_fw.logfile: DetectorRows or KalmanRows), which row_layout() gives before the core is
+(tipbot_fw.record.logfile: DetectorRows or KalmanRows), which row_layout() gives before the core is
 made (the log's header is written before the calibration); angles(mem_row) for a stop message;
 header() for the log; limits; battery_v; max_count_step, the largest change of a wheel's count
 from tick to tick the core takes (None: any), which the loop's plausibility check enforces.
@@ -25,7 +25,7 @@ from tick to tick the core takes (None: any), which the loop's plausibility chec
 import importlib
 
 # imported when selected: a run keeps the modules of its own core only (memory on the brick)
-CORES = {'kalman': ('tipbot_fw.kalman', 'KalmanCore'), 'detector': ('tipbot_fw.detector_core', 'DetectorCore')}
+CORES = {'kalman': ('tipbot_fw.cores.kalman', 'KalmanCore'), 'detector': ('tipbot_fw.cores.detector_core', 'DetectorCore')}
 
 
 def core_class(estimator):
@@ -40,5 +40,5 @@ def make_core(gains, config, counts_per_rot=(360, 360, 360, 360), layout=None):
 
 
 def row_layout(gains, config):
-    """The log row of the core the configuration selects (tipbot_fw.logfile)."""
+    """The log row of the core the configuration selects (tipbot_fw.record.logfile)."""
     return core_class(config['estimator']).row_layout(gains, config)

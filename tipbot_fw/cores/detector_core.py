@@ -1,13 +1,13 @@
 """The paper's core (config estimator: detector): signal chain, Section 6 detector, LQR.
 
-Selectable for reproducing the paper; the firmware's default is tipbot_fw.kalman. Raw readings
-+ battery voltage -> duties and a log row, no I/O, no time (tipbot_fw.core describes the
+Selectable for reproducing the paper; the firmware's default is tipbot_fw.cores.kalman. Raw readings
++ battery voltage -> duties and a log row, no I/O, no time (tipbot_fw.cores.core describes the
 interface both cores share). Pipeline per tick: signal chain -> detector + control law (one
 matrix product) -> saturation -> duty -> log row.
 
 On the brick each Python float handled one by one costs about as much as a multiply-add inside
 the product, so the core moves data by struct packing and byte copies between preallocated
-buffers, and folds every constant factor into the matrix (tipbot_fw.detector):
+buffers, and folds every constant factor into the matrix (tipbot_fw.cores.detector):
   v_bytes (the product's input v): [x~_k | w-_k-1 | duty_k | y_k | y_k+1 (used entries)], float64
   z_bytes (its output z):          [x~_k+1 | w-_k | dcmd_k+1], 18 float64
 duty_k are the duties written to the motors at tick k and dcmd_k+1 the next ones before
@@ -23,12 +23,12 @@ import struct
 
 import numpy as np
 
-from tipbot_fw import logfile
+from tipbot_fw.record import logfile
 from tipbot_fw.config import motor_polarity
-from tipbot_fw.controller import battery_constants, to_duties
-from tipbot_fw.detector import N_FIXED, N_OUT, U_OUT, V_U, V_W, V_Y0, W_OUT, X_OUT, fold
+from tipbot_fw.cores.saturation import battery_constants, to_duties
+from tipbot_fw.cores.detector import N_FIXED, N_OUT, U_OUT, V_U, V_W, V_Y0, W_OUT, X_OUT, fold
 from tipbot_fw.gains import ACTUATED_INPUTS, N_STATES
-from tipbot_fw.signals import SignalChain, lowpass_coefficient
+from tipbot_fw.cores.signal_chain import SignalChain, lowpass_coefficient
 
 FALL = logfile.FLAG_BITS['fall']
 JOINT_LIMIT = logfile.FLAG_BITS['joint_limit']
@@ -159,7 +159,7 @@ class DetectorCore(object):
         return self._finish(enc, gyro, y, buf, offset)
 
     def step(self, enc, gyro, buf, offset):
-        """Every later tick: the equations of tipbot_fw.detector as z = M v, one numpy call."""
+        """Every later tick: the equations of tipbot_fw.cores.detector as z = M v, one numpy call."""
         y = self.chain.update(enc, gyro)
         self.pack_y1(self.v_bytes, _V_Y1, *self.pick_y1(y))
         self.dot(self.v, self.z)
@@ -185,10 +185,10 @@ class DetectorCore(object):
 
     def skip(self, periods):
         """Periods the loop missed: the paper's core, kept as published, resumes from its last
-        estimate (the Kalman core predicts through them: tipbot_fw.kalman)."""
+        estimate (the Kalman core predicts through them: tipbot_fw.cores.kalman)."""
 
     def wind_down(self):
-        """The paper's law has no integrators (tipbot_fw.kalman's may have): nothing to keep."""
+        """The paper's law has no integrators (tipbot_fw.cores.kalman's may have): nothing to keep."""
         return False
 
     def restore(self, row, encoder_offsets):

@@ -22,7 +22,7 @@ columns, is exactly zero because the model does not depend on where the robot st
 
 One matrix holds both (the gains file's `kalman.law.M`, rows [u_k, xi_k], columns
 [u_{k-1}, xi_{k-1}, dphi_r, dphi_l, m_k]). Every bounded quantity then has a small fixed-point
-range, which is what lets the tick run in int64 (tipbot_fw.fixedpoint): per tick
+range, which is what lets the tick run in int64 (tipbot_fw.cores.fixedpoint): per tick
 
     v    = [duty_{k-1} (4) | xi_{k-1} (n) | dcount_r, dcount_l, the four counts from their
             zeros, gyro_rate (raw ints) | 1]
@@ -47,7 +47,7 @@ made at construction, one matrix-vector product per set bit of m, in Python floa
 order (IEEE-754: the same bits on any machine, so a replay still matches): about 1 ms on the
 brick for a stall of 60 periods, paid only after a stall.
 
-Driving (tipbot_fw.drive): the law tracks a moving reference, u = -K_a (x^ - x_ref) + u_ff. The
+Driving (tipbot_fw.drive.plan): the law tracks a moving reference, u = -K_a (x^ - x_ref) + u_ff. The
 reference's wheel positions d_ref enter as the wheel angles do with the other sign (the same
 law columns, in 1/REF_POS_STEPS of a count), its wheel speeds and accelerations r through the
 gains' feedforward G (hostsim.model.reference: K_a x_ref's other entries plus u_ff, per unit of
@@ -74,10 +74,10 @@ import struct
 
 import numpy as np
 
-from tipbot_fw import fixedpoint as fx
-from tipbot_fw import logfile
+from tipbot_fw.cores import fixedpoint as fx
+from tipbot_fw.record import logfile
 from tipbot_fw.config import motor_polarity
-from tipbot_fw.plausibility import BATTERY_MAX_V, BATTERY_MIN_V
+from tipbot_fw.guard.plausibility import BATTERY_MAX_V, BATTERY_MIN_V
 
 FALL = logfile.FLAG_BITS['fall']
 JOINT_LIMIT = logfile.FLAG_BITS['joint_limit']
@@ -88,7 +88,7 @@ N_IN = 7                 # the counts' changes dcount_r, dcount_l; the counts fr
                          # count_r, count_l, count_2, count_3; the gyro's raw rate
 # Bounds of the integer inputs (fixed-point ranges), and who keeps each: the duties (the
 # saturation); a wheel's count change in one tick (the control loop's plausibility check,
-# tipbot_fw.plausibility.EncoderBound with max_step = MAX_COUNT_STEP: a motor turns at most
+# tipbot_fw.guard.plausibility.EncoderBound with max_step = MAX_COUNT_STEP: a motor turns at most
 # ~30 rad/s, 0.15 rad = 9 counts per 5 ms, and the check refuses a jump beyond the hardware's
 # reach, at most this whatever the period or a late tick: more is a failed read); a wheel's count
 # from its zero (2^23 counts, 23,300 turns, 5 km: more than a charge of the battery at full
@@ -103,7 +103,7 @@ WHEEL_COUNT_BOUND = 2 ** 23
 JOINT_COUNT_BOUND = 2 ** 10
 GYRO_BOUND = 2 ** 15
 INPUT_BOUNDS = (WHEEL_STEP_BOUND,) * 2 + (WHEEL_COUNT_BOUND,) * 2 + (JOINT_COUNT_BOUND,) * 2 + (GYRO_BOUND,)
-# The drive reference (tipbot_fw.drive; zero while the robot stands): the wheels' reference
+# The drive reference (tipbot_fw.drive.plan; zero while the robot stands): the wheels' reference
 # positions in 1/REF_POS_STEPS of a count from the zeros (a sub-count step: 0.1 mm/s at 5 ms is
 # 1/13 of a count a tick), their speeds and accelerations in 2^-REF_RATE_EXP m/s and m/s^2.
 # Bounds: the counts' own, 2 m/s and 16 m/s^2 (beyond the gains' limits, which the reference keeps).
@@ -239,7 +239,7 @@ class KalmanCore(object):
 
     Construct, then set_gyro_bias() (after calibration), set_battery() before the first tick
     and whenever the reading changes (outside the ticks), start() for the first tick, step()
-    for every later one. Both write the tick's memory row (tipbot_fw.logfile.KalmanRows) except
+    for every later one. Both write the tick's memory row (tipbot_fw.record.logfile.KalmanRows) except
     its time columns into the bytearray buf at byte offset `offset` and return (duties, stop):
     duties for Devices.write_duties, stop nonzero (FALL / JOINT_LIMIT) if the motors must be
     stopped now instead. The wheel counts' change from tick to tick must stay within
@@ -579,7 +579,7 @@ class KalmanCore(object):
 
     def set_live(self, rows):
         """Drive from a live plan: `rows` (a collections.deque of 48-byte rows, made by
-        tipbot_fw.pathfollow for a course, tipbot_fw.remote for a remote) that the loop's slack
+        tipbot_fw.drive.pathfollow for a course, tipbot_fw.drive.remote for a remote) that the loop's slack
         keeps filled (more than LIVE_KEEP_ROWS ahead); one is taken each tick."""
         self.plan = self.live = rows
         self.next_row = rows.popleft
