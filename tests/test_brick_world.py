@@ -1,4 +1,4 @@
-"""The unkind brick in the loop (hostsim.sim.brick_world, hostsim.world.brick_timing): time that
+"""The unkind brick in the loop (hostsim.world.lockstep, hostsim.world.brick_timing): time that
 costs, staggered duties, the firmware's own overrun accounting, the fake EV3's blocking and
 failing mode writes, the battery's sag in the firmware's log, the realistic preset."""
 import dataclasses
@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from hostsim.sim.fil import SimulationError, run_firmware
+from hostsim.sim.firmware_run import SimulationError, run_firmware
 from hostsim.sim.scenario import Brick, load_scenario
 from hostsim.studies.montecarlo import gains_document
 from hostsim.world.brick_timing import AccessTimes, BrickClock, TimedIO
@@ -105,7 +105,7 @@ def test_the_lights_and_the_speaker_cost_brick_time():
 @pytest.mark.slow
 def test_a_timed_run_gives_the_loops_cues_on_the_fake_brick():
     # the let-go melody's rest and 'balancing' come from the loop's side task, each a timed write
-    # (hostsim.sim.fil.SlackCues); the writes land between the loop's ticks
+    # (hostsim.sim.firmware_run.SlackCues); the writes land between the loop's ticks
     run = run_firmware(scenario(duration_s=1.5, tacho_access_s=(0.0002, 0.0002)), gains_doc=kw0())
     assert run.completed
     tones, lights = [], []

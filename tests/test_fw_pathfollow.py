@@ -76,7 +76,7 @@ def test_the_square_on_the_realistic_brick_ends_where_it_started():
     # issue 21's square, seed 0 of scenarios/drive_square.json: within 5 cm and 5 degrees of its
     # start (the wheels' own tracking alone ended 10 cm away: docs/course-format.md)
     from hostsim.sim import metrics
-    from hostsim.sim.fil import run_firmware
+    from hostsim.sim.firmware_run import run_firmware
     from hostsim.sim.scenario import load_scenario
     sc = load_scenario("drive_square")
     run = run_firmware(sc, sysfs=True)

@@ -18,7 +18,7 @@ import pytest
 from hostsim.model import gains as host_gains
 from hostsim.logs import identify as I
 from hostsim.model.motors import TABLE2
-from hostsim.world.motor_sim import one_motor_fake, simulate_identify
+from hostsim.sim.motor_sim import one_motor_fake, simulate_identify
 from tipbot_fw import cli
 from tipbot_fw.record import logfile
 from tipbot_fw import identify as fw

@@ -84,7 +84,7 @@ def test_top_level_holds_only_the_entry_points():
 
 
 @pytest.mark.parametrize("source, expected", [
-    ("from hostsim.sim import fil\n", ["hostsim.sim"]),
+    ("from hostsim.sim import firmware_run\n", ["hostsim.sim"]),
     ("def f():\n    from hostsim.studies.plots import x\n", ["hostsim.studies.plots"]),
     ("from hostsim import paths\n", ["hostsim.paths"]),
     ("from ..sim.metrics import y\n", ["hostsim.sim.metrics"]),

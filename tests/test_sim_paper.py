@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from hostsim.sim import metrics
-from hostsim.sim.fil import run_firmware
+from hostsim.sim.firmware_run import run_firmware
 from hostsim.sim.linear_sim import simulate_linear, simulate_nonlinear
 from hostsim.model.pd import pd_for_gains
 from hostsim.studies.runner import run_scenario, scenario_metrics
@@ -125,7 +125,7 @@ def test_firmware_runs_of_the_paper_scenarios_keep_the_invariants(name, duration
     # scenario's x~(0).
     np.testing.assert_allclose(run.xhat[0, 2:5], sc.x0_si[2:5], atol=1e-9)
     assert np.all(run.xhat[0, 5:] == 0)
-    # The wheel origin (hostsim.sim.fil): shifted by d_origin_m, the firmware's estimated d is the
+    # The wheel origin (hostsim.sim.firmware_run): shifted by d_origin_m, the firmware's estimated d is the
     # plant's, to an encoder count and the th1 estimate's error times R_w.
     early = run.t_s <= 0.3
     assert np.abs(run.xhat[early, :2] - run.x[early, :2]).max() < 0.002

@@ -16,8 +16,8 @@ from hostsim.model.params import scaled_params
 from hostsim.model.equations import RobotModel, state_scale_to_si
 from hostsim.sim.governor import ReferenceGovernor
 from hostsim.sim.result import RunResult
-from hostsim.world.plant import Plant
-from hostsim.sim.scenario import disturbance_at, scenario_load
+from hostsim.world.plant import Plant, disturbance_at
+from hostsim.sim.scenario import scenario_load
 
 PLANT_DT_S = 0.001
 

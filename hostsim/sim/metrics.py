@@ -1,7 +1,7 @@
 """Figures of merit of one simulated run (SI units; JSON-ready values).
 
 A run is the hostsim.sim.result.RunResult the simulators return (hostsim.sim.linear_sim,
-hostsim.sim.fil).
+hostsim.sim.firmware_run).
 """
 import math
 

@@ -1,6 +1,6 @@
 """What a simulated run returns: one record, whichever simulator ran it (SI units).
 
-hostsim.sim.linear_sim (linear and nonlinear modes) and hostsim.sim.fil (the firmware in the
+hostsim.sim.linear_sim (linear and nonlinear modes) and hostsim.sim.firmware_run (the firmware in the
 loop) fill the fields they know; the others stay None. Arrays have one row per control tick,
 row k at t_s[k] (t = 0: the release).
 """

@@ -137,7 +137,7 @@ def _gains(path):
 
 def _run(sc, gains_path, sysfs=None, keep_rows=False):
     """sysfs: through the fake EV3 tree (None: when the brick's effects need it, e.g. a stall)."""
-    from hostsim.sim.fil import run_firmware
+    from hostsim.sim.firmware_run import run_firmware
     sysfs = sc.brick.needs_sysfs if sysfs is None else sysfs
     return run_firmware(sc, gains_doc=_gains(gains_path), sysfs=sysfs, keep_rows=keep_rows)
 

@@ -149,7 +149,7 @@ def run_one(task):
     """Worker: one Monte Carlo run -> a JSON-ready row (with the figures of the perfect-
     measurement run of the same robot: hostsim.sim.linear_sim.IdealController)."""
     from hostsim.sim import metrics
-    from hostsim.sim.fil import run_firmware
+    from hostsim.sim.firmware_run import run_firmware
     from hostsim.sim.linear_sim import simulate_nonlinear
     from tipbot_fw.gains import gains_from_dict
 

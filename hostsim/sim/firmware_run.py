@@ -15,7 +15,7 @@ plant's 1 ms step). The plant integrates with the scenario's ``plant_method`` at
 ``advance`` per piece of constant input (hostsim.world.plant).
 
 With a scenario's ``brick`` effects on (hostsim.sim.scenario.Brick), the world is
-hostsim.sim.brick_world.BrickWorld instead: the same plant on a 1 ms grid with the
+hostsim.world.lockstep.BrickWorld instead: the same plant on a 1 ms grid with the
 drivetrain, the sensors' and the battery's imperfections and, with the brick's timing, every
 sysfs access at its own moment (hostsim.world.brick_timing); the brick's timing needs the
 fake EV3 tree (``sysfs=True``). With the timing, the firmware's cues in its loop (lights and
@@ -48,13 +48,13 @@ from hostsim.errors import TipbotError
 from hostsim.model.equations import RobotModel, state_scale_to_si
 from hostsim.model.gains import with_law
 from hostsim.model.params import load_params, scaled_params
-from hostsim.sim.brick_world import BrickWorld, Lockstep
+from hostsim.world.lockstep import BrickWorld, Lockstep
 from hostsim.sim.result import RunResult
 from hostsim.world.brick_timing import AccessTimes, BrickClock, TimedIO
 from hostsim.world.drivetrain import DrivetrainPlant
 from hostsim.world.gyro import GyroModel
-from hostsim.world.plant import Plant, apply_push
-from hostsim.sim.scenario import disturbance_at, firmware_overrides, merged_fields, scenario_load
+from hostsim.world.plant import Plant, apply_push, disturbance_at
+from hostsim.sim.scenario import firmware_overrides, merged_fields, scenario_load
 from hostsim.world.sensors import BatteryModel, EncoderModel, SensorModel
 from tipbot_fw import config as fw_config
 from tipbot_fw.record import logfile

@@ -1,6 +1,6 @@
 """The world of a firmware-in-the-loop run on an unkind brick (a scenario's ``brick`` effects).
 
-hostsim.sim.fil.World is today's world: reads at the tick's start, all duties together
+hostsim.sim.firmware_run.World is today's world: reads at the tick's start, all duties together
 ``io_latency_s`` later, ideal sensors and motors. :class:`BrickWorld` runs the same plant on a
 fixed 1 ms grid (k * dt from the start of the run) and adds what the scenario's ``brick``
 switches on:
@@ -29,8 +29,7 @@ devices ``calibration_reads`` times).
 """
 import numpy as np
 
-from hostsim.sim.scenario import disturbance_at
-from hostsim.world.plant import apply_push
+from hostsim.world.plant import apply_push, disturbance_at
 from tipbot_fw.gains import ACTUATED_INPUTS
 
 _EPS_S = 1e-9

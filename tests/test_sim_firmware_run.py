@@ -15,7 +15,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from hostsim.sim.fil import run_firmware
+from hostsim.sim.firmware_run import run_firmware
 from hostsim.sim.linear_sim import simulate_linear
 from hostsim.studies.montecarlo import gains_document
 from hostsim.sim.scenario import Disturbance, Push, load_scenario
@@ -83,9 +83,9 @@ def test_a_ctrl_c_during_a_firmware_run_ends_the_host_job(monkeypatch):
     # (make sim) must end too, not go on to its next run
     import os
     import signal
-    from hostsim.sim import fil
+    from hostsim.sim import firmware_run
     from hostsim.sim.scenario import load_scenario
-    real = fil.World.on_sleep
+    real = firmware_run.World.on_sleep
     calls = []
 
     def on_sleep(self, t_from, t_to):
@@ -93,7 +93,7 @@ def test_a_ctrl_c_during_a_firmware_run_ends_the_host_job(monkeypatch):
         if len(calls) == 300:
             os.kill(os.getpid(), signal.SIGINT)
         return real(self, t_from, t_to)
-    monkeypatch.setattr(fil.World, "on_sleep", on_sleep)
+    monkeypatch.setattr(firmware_run.World, "on_sleep", on_sleep)
     with pytest.raises(KeyboardInterrupt):
-        fil.run_firmware(load_scenario("section8"), sysfs=False)
+        firmware_run.run_firmware(load_scenario("section8"), sysfs=False)
     assert 300 <= len(calls) < 2000       # it stopped soon after the signal, not at the run's end
