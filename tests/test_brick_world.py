@@ -17,6 +17,7 @@ from tipbot_fw.io import lights_speaker
 from tipbot_fw.record import logfile
 from tipbot_fw.config import defaults
 from tipbot_fw.io.ev3dev import Ev3Devices, Ev3SetupError
+from tipbot_fw import vocabulary
 
 TACHO = (0.0003, 0.00045)
 
@@ -161,7 +162,7 @@ def test_the_firmware_sees_real_lateness_and_stops_when_it_falls_behind():
     assert run.header["stop_message"].startswith("the loop is behind")
     assert run.t_s[-1] < 0.5                        # stopped within the overrun window
     flags = run.flags[np.isfinite(run.flags)].astype(int)
-    late = (flags & logfile.FLAG_BITS["overrun"]) != 0
+    late = (flags & vocabulary.FLAG_BITS["overrun"]) != 0
     assert late[-1] and late.mean() > 0.5           # the stopping tick ended late, as most did
     assert run.header["loop"]["skipped_periods"] > 0
     # the firmware's own tick time: its reads, compute and writes

@@ -106,8 +106,10 @@ def test_plan_sends_only_changes_chmods_modes_and_removes_what_was_deployed_befo
 
 
 def test_make_run_explains_each_exit_status_in_full():
-    meanings = deploy_tool.exit_meanings()
+    codes = deploy_tool.exit_codes()
+    meanings = codes.MEANINGS
     assert sorted(meanings) == [0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 130, 143]
+    assert sorted(codes.WITH_LOG) == [0, 1, 3, 4, 5, 6, 7, 8, 9, 130, 143]     # every exit of a run but 2
     assert meanings[4].endswith("or (identify) the owner did not confirm that the motor is free to turn")
     assert meanings[3].endswith("(run) a log of the header only, naming them")
 

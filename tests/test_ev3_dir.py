@@ -38,7 +38,8 @@ def make_install_dir(tmp_path, gains=True):
     shutil.copy2(os.path.join(EV3, "tipbot.service"), str(d / "tipbot.service"))
     # the real supervisor (the launcher becomes it) and a stand-in firmware that reports how it
     # was started
-    for name in ("supervisor.py", "guard/__init__.py", "guard/heartbeat.py", "config.py", "fields.py", "guard/safety.py",
+    for name in ("supervisor.py", "vocabulary.py", "guard/__init__.py", "guard/heartbeat.py", "config.py", "fields.py",
+                 "guard/safety.py", "guard/exit_codes.py",
                  "guard/realtime.py", "default_config.json"):
         shutil.copy2(os.path.join(REPO, "tipbot_fw", name), str(d / "tipbot_fw" / name))
     (d / "tipbot_fw" / "__init__.py").write_text("")

@@ -9,9 +9,10 @@ import pytest
 
 from hostsim.logs import export
 from tipbot_fw.record import logfile
+from tipbot_fw.cores.detector_rows import DetectorRows
 
 
-def a_log(path, columns=logfile.COLUMNS, kind=None, nrows=30, seed=4):
+def a_log(path, columns=DetectorRows.columns, kind=None, nrows=30, seed=4):
     rng = np.random.RandomState(seed)
     rows = rng.normal(size=(nrows, len(columns))) * 10.0 ** rng.randint(-6, 6, size=(1, len(columns)))
     rows[:, 0] = np.arange(nrows) * 0.005

@@ -10,7 +10,8 @@ import pytest
 import fw_support as S
 from hostsim.world.fake_ev3 import FakeEV3
 from tipbot_fw import cli
-from tipbot_fw.record.logfile import col, read_log
+from tipbot_fw.cores.detector_rows import DetectorRows
+from tipbot_fw.record.logfile import read_log
 from conftest import PHYSICAL_GAINS, REPO
 
 
@@ -106,7 +107,7 @@ def test_run_on_the_fake_ev3(fake, tmp_path, quick_config, capsys):
     assert header['stop_reason'] == 'completed' and len(rows) == 20
     assert header['encoder_offsets'] == [100, -20, 30, 40]
     assert header['counts_per_rot'] == [360, 360, 360, 360]
-    assert np.all(rows[:, col('battery_v')] == pytest.approx(8.2))
+    assert np.all(rows[:, DetectorRows.col('battery_v')] == pytest.approx(8.2))
     states = fake.poll()
     for port in ('outA', 'outB', 'outC', 'outD'):
         assert fake.motor_duty(port) == 0 and not fake.motor_running(port), states[port]

@@ -4,7 +4,8 @@ import numpy as np
 
 import fw_support as S
 from tipbot_fw.cores.detector import N_FIXED, fold, fold_full, reference_step
-from tipbot_fw.gains import ACTUATED_INPUTS, load_gains
+from tipbot_fw.gains import load_gains
+from tipbot_fw.vocabulary import ACTUATED_INPUTS
 from conftest import PHYSICAL_GAINS, gains_path
 
 ACT = ACTUATED_INPUTS

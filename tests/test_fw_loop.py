@@ -14,8 +14,9 @@ from tipbot_fw.io.devices import MemoryDevices
 from tipbot_fw.loop import SIDE_WAIT_S, ControlLoop
 from tipbot_fw.guard.safety import OverrunLimit, Terminated
 from tipbot_fw.session import run_session
+from tipbot_fw import vocabulary
 
-OVERRUN = logfile.FLAG_BITS['overrun']
+OVERRUN = vocabulary.FLAG_BITS['overrun']
 
 TS = S.TS
 
@@ -213,8 +214,8 @@ def test_one_stall_is_ridden_out_and_the_core_predicts_through_the_periods_it_mi
     assert stats.overruns == 1 and stats.skipped_periods == 11 and stats.max_lost_s < 1e-9
     assert skipped == [11]
     flags = log.mem[:log.count, log.rows.flags_index].astype(int)
-    assert flags[29] & OVERRUN and flags[29] >> logfile.SKIP_SHIFT == 11
-    assert not (flags[:29] >> logfile.SKIP_SHIFT).any() and not (flags[30:] >> logfile.SKIP_SHIFT).any()
+    assert flags[29] & OVERRUN and flags[29] >> vocabulary.SKIP_SHIFT == 11
+    assert not (flags[:29] >> vocabulary.SKIP_SHIFT).any() and not (flags[30:] >> vocabulary.SKIP_SHIFT).any()
 
 
 def test_a_stall_longer_than_the_longest_ridden_out_stops_the_loop_and_is_counted():

@@ -15,6 +15,7 @@ from hostsim.logs import replay
 from hostsim.sim.scenario import parse_scenario
 from tipbot_fw.record import logfile
 from conftest import PAPER_GAINS, PHYSICAL_GAINS
+from tipbot_fw import vocabulary
 
 # Small gyro noise and a push: the readings, estimates and inputs move (not a trivial log).
 SCENARIO = {"name": "replay-test", "duration_s": 1.5, "sensors": {"gyro_noise_dps": 0.3, "gyro_bias_dps": 0.7},
@@ -88,7 +89,7 @@ def test_a_log_with_a_stall_replays_exactly_through_the_periods_the_core_predict
     path = str(tmp_path / "stall.log")
     firmware_run.run_firmware(sc, log_path=path, sysfs=True)
     r = replay.replay_log(path)
-    skipped = (r.rows[:, col(r.header, "flags")].astype(int) >> logfile.SKIP_SHIFT) & logfile.SKIP_MAX
+    skipped = (r.rows[:, col(r.header, "flags")].astype(int) >> vocabulary.SKIP_SHIFT) & vocabulary.SKIP_MAX
     assert 12 <= skipped.max() <= 14 and r.header["loop"]["skipped_periods"] >= skipped.max()
     assert r.exact and r.max_diff == 0.0
     # and the prediction mattered: without it the rows after the stall differ

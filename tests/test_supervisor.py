@@ -12,10 +12,10 @@ import faults
 from conftest import PHYSICAL_GAINS
 from tipbot_fw import config
 from tipbot_fw.guard import heartbeat, safety
-from tipbot_fw.record import logfile
 from tipbot_fw.cues import STOP_WORDS
 from tipbot_fw.io.lights_speaker import COLOR_NAMES, STATES, stop_state
 from tipbot_fw.supervisor import MotorStopper, Watch, _past_hold
+from tipbot_fw import vocabulary
 
 pytestmark = pytest.mark.slow   # real processes or long studies: not in make test-fast
 
@@ -196,7 +196,7 @@ def test_a_controller_frozen_for_less_than_its_hold_keeps_its_motors_and_catches
     header, rows = r.log()
     assert header['stop_reason'] == 'completed'
     flags = rows[:, [c['name'] for c in header['columns']].index('flags')].astype(int)
-    skipped = flags >> logfile.SKIP_SHIFT
+    skipped = flags >> vocabulary.SKIP_SHIFT
     # one hold of about stall_s / 5 ms periods (the wall clock's scheduling adds a little)
     assert stall_s / 0.005 - 2 <= skipped.max() <= stall_s / 0.005 + 6, skipped.max()
     assert header['loop']['skipped_periods'] >= skipped.max()

@@ -1,4 +1,4 @@
-"""Command line: python3 -m tipbot_fw {run,check,calibrate,bench,identify} ... (exit codes: tipbot_fw.guard.safety).
+"""Command line: python3 -m tipbot_fw {run,check,calibrate,bench,identify} ... (exit codes: tipbot_fw.guard.exit_codes).
 
 Order of a run: the signal handlers (before anything else), the supervisor's page if there is
 one (tipbot_fw.supervisor), the configuration, gains and telemetry target (--telemetry: its
@@ -9,7 +9,7 @@ command line unchanged (the launcher passes its arguments on).
 import argparse
 import os
 
-from tipbot_fw.guard import heartbeat, safety
+from tipbot_fw.guard import exit_codes, heartbeat, safety
 from tipbot_fw import identify
 from tipbot_fw.record import logfile
 from tipbot_fw.calibration import calibrate_gyro
@@ -45,7 +45,7 @@ def _positive_int(text):
 
 def _parser():
     p = argparse.ArgumentParser(prog='python3 -m tipbot_fw', description='tipbot firmware',
-                                epilog=safety.__doc__.split('\n', 1)[1],
+                                epilog=exit_codes.help_text(),
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = p.add_subparsers(dest='command')
 

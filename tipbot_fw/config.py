@@ -64,11 +64,9 @@ import copy
 import os
 
 from tipbot_fw import fields
+from tipbot_fw.vocabulary import MOTOR_ROLES
 
 DEFAULT_PATH = os.path.join(os.path.dirname(os.path.abspath(__file__)), 'default_config.json')
-
-# The four motors' roles, in the order of every per-motor tuple (duties, counts, polarities).
-MOTOR_ROLES = ('right_wheel', 'left_wheel', 'joint2', 'joint3')
 
 # The ev3dev sysfs tree; TIPBOT_SYSFS_ROOT names another (a fake EV3 behind the launcher: make
 # sim-brick), --sysfs-root one for a single command.

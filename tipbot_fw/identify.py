@@ -49,7 +49,8 @@ import tipbot_fw
 from tipbot_fw.io import ev3dev
 from tipbot_fw.record import logfile
 from tipbot_fw.io.clock import MonotonicClock
-from tipbot_fw.config import MOTOR_ROLES, ConfigError, load_config
+from tipbot_fw.config import ConfigError, load_config
+from tipbot_fw.vocabulary import MOTOR_ROLES
 from tipbot_fw.console import say
 from tipbot_fw.guard.plausibility import check_battery
 from tipbot_fw.guard.safety import (EXIT_DEVICES, EXIT_ERROR, EXIT_INTERRUPT, EXIT_INVALID, EXIT_OK,

@@ -44,12 +44,13 @@ Motors are not stopped here: the caller (tipbot_fw.session) stops them in its fi
 import collections
 import gc
 
-from tipbot_fw.record import logfile
-from tipbot_fw.guard.heartbeat import NOT_SUPERVISED
-from tipbot_fw.guard.realtime import ask_fifo
-from tipbot_fw.guard.plausibility import GYRO_MAX_DPS, EncoderBound, check_battery
 from tipbot_fw.config import MAX_STALL_S
+from tipbot_fw.guard.heartbeat import NOT_SUPERVISED
+from tipbot_fw.guard.plausibility import GYRO_MAX_DPS, EncoderBound, check_battery
+from tipbot_fw.guard.realtime import ask_fifo
 from tipbot_fw.guard.safety import DeviceFailure, FallDetected, JointLimit, OverrunLimit, Terminated, watchdog_stop
+from tipbot_fw.record import logfile
+from tipbot_fw.vocabulary import FLAG_BITS, SKIP_MAX, SKIP_SHIFT, WOUND_DOWN
 
 # What a tick must leave before the next release for the work between ticks (a chunk of log rows
 # is a copy, a CRC-32 and a pwrite; the battery one sysfs read, 0.3-0.45 ms on the brick), or
@@ -65,10 +66,8 @@ SIDE_WAIT_S = 0.05
 # "Integral action"), whatever the battery's reading period
 WIND_DOWN_S = 1.0
 
-OVERRUN = logfile.FLAG_BITS['overrun']
-SKIP_SHIFT, SKIP_MAX = logfile.SKIP_SHIFT, logfile.SKIP_MAX
-WOUND_DOWN = logfile.WOUND_DOWN
-FALL = logfile.FLAG_BITS['fall']
+OVERRUN = FLAG_BITS['overrun']
+FALL = FLAG_BITS['fall']
 
 
 def _NEVER(k):
@@ -187,7 +186,9 @@ class ControlLoop(object):
                                late_s * 1e3, k, missed, self.max_stall_s))
 
     def _run(self, stats):
-        # Locals: attribute and global lookups cost real time on the brick.
+        """The ticks: the hot path, written out with locals (attribute and global lookups cost
+        real time on the brick); what a late tick and the work between ticks do are the cold
+        methods _late_tick and _between_ticks."""
         dev = self.devices
         read = dev.read_raw
         write = dev.write_duties
@@ -199,14 +200,8 @@ class ControlLoop(object):
         cap = log.capacity
         pack_times = logfile.TIMES.pack_into
         row_bytes = log.row_bytes
-        flags_col = log.rows.flags_index
         period = self.period_s
         n_ticks = self.n_ticks
-        battery_every = self.battery_every
-        window = self.overrun_window_s
-        max_lost = self.max_lost_s
-        max_stall = self.max_stall_s
-        skips = collections.deque()     # (release, seconds) of the periods skipped within the window
         hbt = self.heartbeat
         beat = hbt.words if hbt.words is not None else [0] * 8   # the same store either way
         bound = (self.encoder_bound or EncoderBound(None, None, period)).with_max_step(core.max_count_step)
@@ -214,21 +209,7 @@ class ControlLoop(object):
         j2_max = float('inf')           # tick 0 has no previous reading
         gyro_max = GYRO_MAX_DPS
         pa = pb = pc = pd = 0
-        # the work between ticks: the tick each part is next due in, and the first tick with any
-        flush = log.flush
-        chunk = log.chunk_rows
-        next_flush = chunk
-        urgent = log.capacity - chunk
-        next_battery = battery_every
-        wind_every = max(1, int(round(WIND_DOWN_S / period)))
-        next_wind = wind_every
-        side = self.side
-        side_due = 1
-        if side is None:
-            side, side_due = _NEVER, _NEVER(0)
-        due = min(next_flush, next_battery, side_due, next_wind)
-        min_slack = min(SLACK_S, SLACK_FRACTION * period)
-        side_wait = max(1, int(round(SIDE_WAIT_S / period)))
+        due = self._plan_between_ticks()    # the first tick with work between ticks
         stats.battery_v = check_battery(self.battery_v)
         core.set_battery(self.battery_v)
         hbt.publish_rail(core.dlim)
@@ -270,62 +251,105 @@ class ControlLoop(object):
                 release += period
                 late = now() - release
                 if late > 0.0:
-                    missed = int(late / period)
-                    log.mem[(k - 1) % cap, flags_col] += OVERRUN + (min(missed, SKIP_MAX) << SKIP_SHIFT)
-                    stats.overruns += 1
-                    stats.skipped_periods += missed
-                    consecutive += 1
-                    if consecutive > stats.max_consecutive_overruns:
-                        stats.max_consecutive_overruns = consecutive
-                    while skips and skips[0][0] <= release - window:
-                        skips.popleft()
-                    lost = longest = late
-                    for _, skipped_s in skips:
-                        lost += skipped_s
-                        if skipped_s > longest:
-                            longest = skipped_s
-                    if late > max_stall:
-                        self._stalled(k - 1, late, missed)
-                    if lost - longest > stats.max_lost_s:
-                        stats.max_lost_s = lost - longest
-                    if lost - longest > max_lost:
-                        self._behind(k - 1, lost, late, longest)
-                    if missed:
-                        release += missed * period
-                        skips.append((release, missed * period))
-                        core.skip(missed)       # the model through the periods missed, duties held
+                    release, consecutive = self._late_tick(k, late, release, consecutive)
                 else:
                     consecutive = 0
                 if k >= due:        # work between ticks: one comparison a tick until some is due
-                    if k >= next_wind:      # the integrators' anti-windup, once a second, before the
-                        if core.wind_down():        # row it flags can go to the file
-                            log.mem[(k - 1) % cap, flags_col] += WOUND_DOWN
-                        next_wind = k - k % wind_every + wind_every
-                    if k >= next_flush and (release - now() > min_slack or k - log.flushed >= urgent):
-                        flush(k)                        # whole chunks: the file's unit
-                        next_flush = k - k % chunk + chunk
-                    if k >= next_battery and (release - now() > min_slack or k - next_battery >= battery_every):
-                        try:
-                            bv = dev.read_battery_v()
-                        except (OSError, ValueError) as e:
-                            raise DeviceFailure('battery read failed after tick {}: {}'.format(k - 1, e))
-                        check_battery(bv, stats.battery_v, 'after tick {}'.format(k - 1))
-                        stats.battery_reads += 1
-                        stats.battery_v = bv
-                        if bv != core.battery_v:
-                            core.set_battery(bv)
-                            hbt.publish_rail(core.dlim)
-                        if not hbt.supervisor_alive():
-                            raise Terminated('the supervisor (pid {}) is gone: the controller stopped the motors '
-                                             'itself'.format(hbt.supervisor_pid), 'supervisor_gone')
-                        next_battery = k - k % battery_every + battery_every     # on the grid
-                    if k >= side_due and (release - now() > min_slack or k - side_due >= side_wait):
-                        side_due = side(k)
-                    due = next_flush if next_flush < next_battery else next_battery
-                    if side_due < due:
-                        due = side_due
-                    if next_wind < due:
-                        due = next_wind
+                    due = self._between_ticks(k, release)
                 sleep_until(release)   # returns at once when late
         finally:
             log.count = stats.ticks = k
+
+    def _late_tick(self, k, late, release, consecutive):
+        """Tick k - 1 ended `late` s after the next release: its row's flags (overrun, the whole
+        periods missed), the counts, the overrun stop (the module's docstring), and the core
+        predicted through the periods missed. -> (the next release, the overruns in a row)."""
+        period = self.period_s
+        stats = self.stats
+        log = self.log
+        skips = self._skips
+        release_was = release
+        missed = int(late / period)
+        log.mem[(k - 1) % log.capacity, log.rows.flags_index] += OVERRUN + (min(missed, SKIP_MAX) << SKIP_SHIFT)
+        stats.overruns += 1
+        stats.skipped_periods += missed
+        consecutive += 1
+        if consecutive > stats.max_consecutive_overruns:
+            stats.max_consecutive_overruns = consecutive
+        while skips and skips[0][0] <= release_was - self.overrun_window_s:
+            skips.popleft()
+        lost = longest = late
+        for _, skipped_s in skips:
+            lost += skipped_s
+            if skipped_s > longest:
+                longest = skipped_s
+        if late > self.max_stall_s:
+            self._stalled(k - 1, late, missed)
+        if lost - longest > stats.max_lost_s:
+            stats.max_lost_s = lost - longest
+        if lost - longest > self.max_lost_s:
+            self._behind(k - 1, lost, late, longest)
+        if missed:
+            release += missed * period
+            skips.append((release, missed * period))
+            self.core.skip(missed)       # the model through the periods missed, duties held
+        return release, consecutive
+
+    def _plan_between_ticks(self):
+        """The tick each part of the work between ticks is first due in (the module's
+        docstring) -> the first tick with any."""
+        period = self.period_s
+        log = self.log
+        self._skips = collections.deque()   # (release, seconds) of the periods skipped within the window
+        self._next_flush = log.chunk_rows
+        self._urgent = log.capacity - log.chunk_rows
+        self._next_battery = self.battery_every
+        self._wind_every = max(1, int(round(WIND_DOWN_S / period)))
+        self._next_wind = self._wind_every
+        self._side, self._side_due = (_NEVER, _NEVER(0)) if self.side is None else (self.side, 1)
+        self._min_slack = min(SLACK_S, SLACK_FRACTION * period)
+        self._side_wait = max(1, int(round(SIDE_WAIT_S / period)))
+        return min(self._next_flush, self._next_battery, self._side_due, self._next_wind)
+
+    def _between_ticks(self, k, release):
+        """After tick k - 1's writes, the parts of the work between ticks that are due, each in
+        a tick that leaves slack before `release` or at once when it cannot wait (the module's
+        docstring) -> the next tick with any due."""
+        log = self.log
+        core = self.core
+        now = self.clock.now
+        min_slack = self._min_slack
+        if k >= self._next_wind:        # the integrators' anti-windup, once a second, before the
+            if core.wind_down():            # row it flags can go to the file
+                log.mem[(k - 1) % log.capacity, log.rows.flags_index] += WOUND_DOWN
+            self._next_wind = k - k % self._wind_every + self._wind_every
+        if k >= self._next_flush and (release - now() > min_slack or k - log.flushed >= self._urgent):
+            log.flush(k)                        # whole chunks: the file's unit
+            self._next_flush = k - k % log.chunk_rows + log.chunk_rows
+        battery_every = self.battery_every
+        if k >= self._next_battery and (release - now() > min_slack or k - self._next_battery >= battery_every):
+            self._read_battery(k)
+            self._next_battery = k - k % battery_every + battery_every     # on the grid
+        if k >= self._side_due and (release - now() > min_slack or k - self._side_due >= self._side_wait):
+            self._side_due = self._side(k)
+        return min(self._next_flush, self._next_battery, self._side_due, self._next_wind)
+
+    def _read_battery(self, k):
+        """The battery's reading after tick k - 1: plausible, the law rescaled when it changed;
+        and whether the supervisor is still there."""
+        stats = self.stats
+        core = self.core
+        hbt = self.heartbeat
+        try:
+            bv = self.devices.read_battery_v()
+        except (OSError, ValueError) as e:
+            raise DeviceFailure('battery read failed after tick {}: {}'.format(k - 1, e))
+        check_battery(bv, stats.battery_v, 'after tick {}'.format(k - 1))
+        stats.battery_reads += 1
+        stats.battery_v = bv
+        if bv != core.battery_v:
+            core.set_battery(bv)
+            hbt.publish_rail(core.dlim)
+        if not hbt.supervisor_alive():
+            raise Terminated('the supervisor (pid {}) is gone: the controller stopped the motors '
+                             'itself'.format(hbt.supervisor_pid), 'supervisor_gone')

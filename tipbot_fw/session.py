@@ -25,6 +25,7 @@ from tipbot_fw.loop import ControlLoop
 from tipbot_fw.console import say
 from tipbot_fw.guard.plausibility import EncoderBound, check_battery
 from tipbot_fw.guard.safety import EXIT_ERROR, EXIT_OK, DeviceFailure, LowBattery, outcome, run_guarded
+from tipbot_fw import vocabulary
 
 
 def base_header(gains, config, duration_s):
@@ -44,7 +45,7 @@ def base_header(gains, config, duration_s):
         'ts_s': gains.ts_s,
         'config': config,
         'duration_s_requested': duration_s,
-        'flag_bits': logfile.FLAG_BITS,
+        'flag_bits': vocabulary.FLAG_BITS,
     }
     header.update(row_layout(gains, config).header())
     return header

@@ -81,7 +81,8 @@ import sys  # noqa: E402
 import time  # noqa: E402
 
 from tipbot_fw.guard import heartbeat as hb  # noqa: E402
-from tipbot_fw.config import MOTOR_ROLES, ConfigError, default_sysfs_root, load_config  # noqa: E402
+from tipbot_fw.config import ConfigError, default_sysfs_root, load_config  # noqa: E402
+from tipbot_fw.vocabulary import MOTOR_ROLES
 from tipbot_fw.guard.realtime import ask_fifo, refused  # noqa: E402
 from tipbot_fw.guard.safety import EXIT_CONTROLLER_DIED, EXIT_INVALID, termination_signals  # noqa: E402
 

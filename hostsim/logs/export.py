@@ -27,8 +27,10 @@ import numpy as np
 
 from hostsim.errors import TipbotError
 from hostsim.logs import read_log
-from tipbot_fw.record import logfile, replay as fw_replay
-from tipbot_fw.gains import ACTUATED_INPUTS, GainsError, load_gains
+from tipbot_fw.record import replay as fw_replay
+from tipbot_fw.gains import GainsError, load_gains
+from tipbot_fw.vocabulary import ACTUATED_INPUTS
+from tipbot_fw import vocabulary
 
 # unit -> what a column name gets appended (None: nothing)
 UNIT_SUFFIX = {"m/s": "m_per_s", "rad/s": "rad_per_s", "deg/s": "deg_per_s", "%": "pct", "bits": None, "": None}
@@ -67,8 +69,8 @@ def format_value(v):
 
 # The physical columns a Kalman log gets (the detector's file columns of the same names), of the
 # four motors' inputs (link 1 has none: its columns would always read 0)
-MOTOR_INPUTS = [n for i, n in enumerate(logfile.INPUT_NAMES) if i in ACTUATED_INPUTS]
-PHYSICAL = ([("xt_" + n, u) for n, u in zip(logfile.STATE_NAMES, logfile.STATE_UNITS)]
+MOTOR_INPUTS = [n for i, n in enumerate(vocabulary.INPUTS) if i in ACTUATED_INPUTS]
+PHYSICAL = ([("xt_" + n, u) for n, u in zip(vocabulary.STATE_NAMES, vocabulary.STATE_UNITS)]
             + [(p + n, "V") for p in ("w_", "u_", "u_cmd_") for n in MOTOR_INPUTS] + [("gyro_bias", "deg/s")])
 
 

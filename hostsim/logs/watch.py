@@ -30,10 +30,12 @@ import sys
 import time
 
 import hostsim
-from tipbot_fw.record import logfile, telemetry
+from tipbot_fw.record import telemetry
 
 from hostsim.errors import TipbotError
 from hostsim.logs.export import csv_header, format_value
+from tipbot_fw import vocabulary
+from tipbot_fw.cores.detector_rows import DetectorRows
 
 NAN = float("nan")
 DEFAULT_PORT = 5005
@@ -52,7 +54,7 @@ PANELS = (
     ("tick duration", "ms", [("tick_s", "read..write", 1e3)]),
 )
 COUNTERS = ("run", "seq", "tick", "overruns", "send_errors")
-_UNITS = dict(logfile.COLUMNS)
+_UNITS = dict(DetectorRows.columns)
 FIELDS = list(telemetry.DECODED)
 # a driven run's reference: plotted, NaN (no line) for a run that stands; not recorded (a
 # recording's columns are those of every run)
@@ -172,7 +174,7 @@ class View(object):
         for line, field, scale in self.lines:
             line.set_data(t, [x * scale for x in d[field][first:end]])
         flags = d["flags"][first:end]
-        over = [i for i, f in enumerate(flags) if int(f) & logfile.FLAG_BITS["overrun"]]
+        over = [i for i, f in enumerate(flags) if int(f) & vocabulary.FLAG_BITS["overrun"]]
         self.overrun_line.set_data([t[i] for i in over], [d["tick_s"][first + i] * 1e3 for i in over])
         for ax in self.axes:
             ax.relim()

@@ -33,9 +33,10 @@ from hostsim.model import reference
 from hostsim.model.equations import INPUT_NAMES, STATE_NAMES, RobotModel, Variant, get_variant, state_scale_to_si
 from hostsim.model.params import DEFAULT_PARAMS_PATH, load_params, params_hash
 from hostsim.paths import GAINS_DIR
-from tipbot_fw.gains import ACTUATED_INPUTS, integrator_count
+from tipbot_fw.cores.kalman_design import fold, spectral_radius
+from tipbot_fw.gains import gains_from_dict
+from tipbot_fw.vocabulary import ACTUATED_INPUTS, GAINS_SCHEMA_VERSION, integrator_count
 
-SCHEMA_VERSION = 2
 DEFAULT_TS_S = 0.005
 DEFAULT_OUT_DIR = GAINS_DIR
 VARIANT_NAMES = ("paper", "physical")
@@ -200,7 +201,7 @@ def state_feedback_radii(variant, params, ts_s, k):
     out = {}
     for name in VARIANT_NAMES:
         am, bm = design.discrete_model_si(RobotModel(name, params), ts_s)
-        out[name] = kalman.spectral_radius(am - bm @ k_si)
+        out[name] = spectral_radius(am - bm @ k_si)
     return out
 
 
@@ -226,7 +227,7 @@ def to_document(g):
     variant, params = g.variant, g.model.params
     st = g.structure
     doc = {
-        "schema_version": SCHEMA_VERSION,
+        "schema_version": GAINS_SCHEMA_VERSION,
         "model_variant": variant.name,
         "model_options": variant.options(),
         "ts_s": _num(g.ts_s),
@@ -249,7 +250,7 @@ def to_document(g):
                                       "every one above damping_above_hz has a damping ratio >= damping_min"),
         "state_feedback_spectral_radius": {k: _num(v) for k, v in sorted(g.state_feedback_radii.items())},
         # of A - B K (the file's law without the Kalman block's integrators, as the firmware checks)
-        "closed_loop_spectral_radius": _num(kalman.spectral_radius(g.A - g.B @ g.K)),
+        "closed_loop_spectral_radius": _num(spectral_radius(g.A - g.B @ g.K)),
         "detector_eigenvalues": [_num(z.real) for z in sorted(g.detector_eigenvalues, key=lambda z: z.real)],
         "controllability_rank": st["controllability_rank"],
         "observability_rank": st["observability_rank"],
@@ -287,15 +288,13 @@ def with_law(doc, k_file=None, k_w=None, note=""):
     """A gains document with another law: K (file units, 5 x 10) and/or K_w (5 x 5); the Kalman
     block's K_a and folded law follow (the filter itself is unchanged). For baselines and
     diagnoses (the PD baseline, K_w = 0), not for the robot."""
-    from tipbot_fw.gains import gains_from_dict
-    from tipbot_fw.cores.kalman import fold
     out = json.loads(json.dumps(doc))
     if k_file is not None:
         out["K"] = np.asarray(k_file, dtype=float).tolist()
     if k_w is not None:
         out["K_w"] = np.asarray(k_w, dtype=float).tolist()
     a, b, k = (np.array(out[key]) for key in ("A", "B", "K"))
-    out["closed_loop_spectral_radius"] = float(np.max(np.abs(np.linalg.eigvals(a - b @ k))))
+    out["closed_loop_spectral_radius"] = spectral_radius(a - b @ k)
     si = gains_from_dict(dict(out, kalman=doc["kalman"]), "<with_law>", check_kalman=False)
     kal = out["kalman"]
     dist = [i for i, name in enumerate(("w_r", "w_l", "w_th2", "w_th3")) if name in kal["state_names"]]
@@ -358,7 +357,7 @@ def summary(g):
         "variant %s: ts %.4g s, state units %s" % (g.variant.name, g.ts_s, "/".join(sorted(set(g.variant.state_units)))),
         "  controllability rank %d, observability rank %d (of 10)" % (st["controllability_rank"], st["observability_rank"]),
         "  open-loop |eig|: %s" % ol,
-        "  closed-loop spectral radius of A - B K: %.6f" % kalman.spectral_radius(g.A - g.B @ g.K),
+        "  closed-loop spectral radius of A - B K: %.6f" % spectral_radius(g.A - g.B @ g.K),
         "  detector eigenvalues (Abar - L1 C): %s" % ", ".join("%.4g" % z.real for z in g.detector_eigenvalues),
         "  Kalman filter: %d states (observability rank %d), slowest error mode |eig| %.5f"
         % (g.kalman.n, g.kalman.observability_rank, np.max(np.abs(g.kalman.filter_eigenvalues))),

@@ -11,7 +11,7 @@ import os
 from hostsim.errors import ParameterError
 from hostsim.paths import REPO_ROOT
 from tipbot_fw import fields
-from tipbot_fw.config import MOTOR_ROLES
+from tipbot_fw.vocabulary import MOTOR_ROLES
 
 DEFAULT_PARAMS_PATH = os.path.join(REPO_ROOT, "params", "robot.json")
 

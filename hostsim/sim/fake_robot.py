@@ -59,8 +59,9 @@ from hostsim.model.params import load_params, scaled_params
 from hostsim.world.plant import Plant, disturbance_at
 from hostsim.sim.scenario import load_scenario, parse_scenario
 from hostsim.world.sensors import SensorModel
-from tipbot_fw.config import MOTOR_ROLES, ConfigError
-from tipbot_fw.gains import ACTUATED_INPUTS
+from tipbot_fw.config import ConfigError
+from tipbot_fw.vocabulary import MOTOR_ROLES
+from tipbot_fw.vocabulary import ACTUATED_INPUTS
 
 DEFAULT_STEP_S = 0.001
 # The firmware's start-up to the end of its gyro calibration is about 1.1 s

@@ -67,8 +67,9 @@ from tipbot_fw.cues import OwnerCues
 from tipbot_fw.io.devices import MemoryDevices
 from tipbot_fw.drive.plan import drive_problem
 from tipbot_fw.io.lights_speaker import BrickSignals
-from tipbot_fw.config import MOTOR_ROLES
-from tipbot_fw.gains import ACTUATED_INPUTS, gains_from_dict, load_gains
+from tipbot_fw.vocabulary import MOTOR_ROLES
+from tipbot_fw.gains import gains_from_dict, load_gains
+from tipbot_fw.vocabulary import ACTUATED_INPUTS
 from tipbot_fw.guard.safety import DevicesMissing
 from tipbot_fw.session import log_refused_start, open_log, run_session
 

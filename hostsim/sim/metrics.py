@@ -7,8 +7,8 @@ import math
 
 import numpy as np
 
-from tipbot_fw.gains import ACTUATED_INPUTS
-from tipbot_fw.record.logfile import FLAG_BITS, SATURATION_BITS
+from tipbot_fw.vocabulary import ACTUATED_INPUTS
+from tipbot_fw.vocabulary import FLAG_BITS, SATURATION_BITS
 
 OVERRUN_BIT = FLAG_BITS["overrun"]
 

@@ -30,7 +30,7 @@ devices ``calibration_reads`` times).
 import numpy as np
 
 from hostsim.world.plant import apply_push, disturbance_at
-from tipbot_fw.gains import ACTUATED_INPUTS
+from tipbot_fw.vocabulary import ACTUATED_INPUTS
 
 _EPS_S = 1e-9
 

@@ -28,7 +28,7 @@ overflow the core's integers.
 """
 import copy
 
-from tipbot_fw.config import MOTOR_ROLES
+from tipbot_fw.vocabulary import MOTOR_ROLES
 from tipbot_fw.guard.safety import DeviceFailure, ImplausibleBattery
 
 BATTERY_MIN_V = 4.5

@@ -43,7 +43,7 @@ Python 3.5 + the standard library (python-ev3dev2 is imported at start-up only).
 import os
 import struct
 
-from tipbot_fw.config import MOTOR_ROLES
+from tipbot_fw.vocabulary import MOTOR_ROLES
 from tipbot_fw.console import say   # (not logging: its modules are memory the brick does not spare)
 
 GYRO_ROLE = 'gyro'

@@ -41,9 +41,10 @@ import zlib
 import numpy as np
 
 from tipbot_fw import fields
+from tipbot_fw.vocabulary import LOG_FORMAT_VERSION
 
 MAGIC = b'TIPBLOG\n'
-FORMAT_VERSION = 2
+FORMAT_VERSION = LOG_FORMAT_VERSION
 READ_VERSIONS = (1, 2)
 HEAD, INFO, ROWS, TAIL = b'HEAD', b'INFO', b'ROWS', b'TAIL'
 TAGS = (HEAD, INFO, ROWS, TAIL)

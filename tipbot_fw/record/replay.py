@@ -13,10 +13,13 @@ datagram.
 """
 import numpy as np
 
-from tipbot_fw.record import logfile
+from tipbot_fw import vocabulary
+from tipbot_fw.config import motor_polarity
+from tipbot_fw.cores import kalman_rows
 from tipbot_fw.cores.core import make_core, row_layout
-from tipbot_fw.gains import ACTUATED_INPUTS
 from tipbot_fw.cores.kalman import wheel_m_per_count
+from tipbot_fw.record import logfile
+from tipbot_fw.vocabulary import ACTUATED_INPUTS
 
 
 def core_from_header(header, gains, check_gains=True):
@@ -45,8 +48,8 @@ def replay(header, rows, gains, check_gains=True):
     layout = core.rows
     logged = _logged_layout(header, layout)
     one = logfile.LogBuffer(1, layout)
-    loop_bits = logfile.FLAG_BITS['overrun'] | (logfile.SKIP_MAX << logfile.SKIP_SHIFT) | logfile.WOUND_DOWN
-    skip_bits = logfile.SKIP_MAX << logfile.SKIP_SHIFT
+    loop_bits = vocabulary.FLAG_BITS['overrun'] | (vocabulary.SKIP_MAX << vocabulary.SKIP_SHIFT) | vocabulary.WOUND_DOWN
+    skip_bits = vocabulary.SKIP_MAX << vocabulary.SKIP_SHIFT
     flags = layout.col('flags')
     readings = _reader(logged)
     starts = dict(logfile.segment_rows(header, len(rows)))
@@ -88,8 +91,8 @@ def replay(header, rows, gains, check_gains=True):
 def _between_ticks(core, loops, skip_bits):
     """What the loop did to the core after a tick, as its flags say: the periods it skipped
     (predicted through), then the integrators kept within their limit (tipbot_fw.loop)."""
-    core.skip((loops & skip_bits) >> logfile.SKIP_SHIFT)
-    if loops & logfile.WOUND_DOWN:
+    core.skip((loops & skip_bits) >> vocabulary.SKIP_SHIFT)
+    if loops & vocabulary.WOUND_DOWN:
         core.wind_down()
 
 
@@ -124,11 +127,11 @@ def _reader(layout):
 def signals(header, rows, gains):
     """The estimates and inputs of a log's rows, SI: {'x_hat': n x 10, 'w_hat': n x 5 (V),
     'u': the applied inputs (n x 5, V), 'u_cmd': the law's output before rounding and
-    saturation (n x 5, V), and for a driven run 'reference' (n x 6: logfile.REFERENCE_COLUMNS)},
+    saturation (n x 5, V), and for a driven run 'reference' (n x 6: kalman_rows.REFERENCE_COLUMNS)},
     for either core."""
     names = [c['name'] for c in header['columns']]
     col = names.index
-    pol = [header['config']['polarity'][m] for m in ('right_wheel', 'left_wheel', 'joint2', 'joint3')]
+    pol = motor_polarity(header['config'])
     n = len(rows)
     u = np.zeros((n, 5))
     volts_per_duty = rows[:, col('battery_v')] / 100.0      # as the detector's file columns
@@ -153,7 +156,7 @@ def signals(header, rows, gains):
     if 'ref_d_r' in names:
         # driving: u = -K_a (x^ - x_ref) + u_ff = -K_a x^ + K_a's wheel columns d_ref + G r
         # (tipbot_fw.cores.kalman, "Driving"); the reference as the log has it
-        ref = np.column_stack([rows[:, col(c)] for c, _ in logfile.REFERENCE_COLUMNS])
+        ref = np.column_stack([rows[:, col(c)] for c, _ in kalman_rows.REFERENCE_COLUMNS])
         extra = ref[:, 0:2].dot(kal.K[:, 0:2].T)
         if kal.reference is not None:
             extra += ref[:, 2:].dot(kal.reference.G.T)

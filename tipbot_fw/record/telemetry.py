@@ -32,8 +32,8 @@ import operator
 import socket
 import struct
 
-from tipbot_fw.gains import INTEGRATOR_NAMES, integrator_count
-from tipbot_fw.record.logfile import REFERENCE_COLUMNS, STATE_NAMES
+from tipbot_fw.vocabulary import INTEGRATOR_NAMES, STATE_NAMES, integrator_count
+from tipbot_fw.cores.kalman_rows import REFERENCE_COLUMNS
 
 MAGIC = b'TBTM'
 VERSION = 2
