@@ -84,7 +84,7 @@ from tipbot_fw.guard import heartbeat as hb  # noqa: E402
 from tipbot_fw.config import ConfigError, default_sysfs_root, load_config  # noqa: E402
 from tipbot_fw.vocabulary import MOTOR_ROLES
 from tipbot_fw.guard.realtime import ask_fifo, refused  # noqa: E402
-from tipbot_fw.guard.safety import EXIT_CONTROLLER_DIED, EXIT_INVALID, termination_signals  # noqa: E402
+from tipbot_fw.guard.safety import EXIT_CONTROLLER_DIED, EXIT_INVALID, signal_name, termination_signals  # noqa: E402
 
 TIMEOUT_S = 0.025
 POLL_S = 0.010
@@ -517,12 +517,6 @@ def _report(problems, when, who='supervisor'):
     for p in problems:
         say('stopping the motors {}: {}'.format(when, p), who)
 
-
-def signal_name(signum):
-    for name in dir(signal):
-        if name.startswith('SIG') and not name.startswith('SIG_') and getattr(signal, name) == signum:
-            return name
-    return 'signal {}'.format(signum)
 
 
 def bench(polls):

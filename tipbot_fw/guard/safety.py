@@ -92,12 +92,17 @@ def termination_signals():
 
 
 def signal_name(signum):
+    """SIGTERM, SIGRTMIN+3, SIGKILL, ...: a termination signal's name first (the controller's
+    stops), any other's (the supervisor's view of a controller that died), else 'signal N'."""
     for name in _TERMINATION_NAMES:
         if getattr(signal, name, None) == signum:
             return name
     lo = getattr(signal, 'SIGRTMIN', None)
     if lo is not None and signum >= lo:
         return 'SIGRTMIN+{}'.format(signum - lo)
+    for name in dir(signal):
+        if name.startswith('SIG') and not name.startswith('SIG_') and getattr(signal, name) == signum:
+            return name
     return 'signal {}'.format(signum)
 
 

@@ -1,7 +1,7 @@
 """The device interface the control loop talks to, and an in-memory implementation.
 
 Raw readings cross this interface untouched (counts and integer gyro units, no polarity, no
-offsets): the signal chain owns every conversion, so a log of raw readings replays exactly.
+offsets): the core (tipbot_fw.cores) makes every conversion, so a log of raw readings replays exactly.
 """
 
 
