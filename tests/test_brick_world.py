@@ -8,7 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from hostsim.sim.firmware_run import SimulationError, run_firmware
+from hostsim.sim.firmware_build import SimulationError
+from hostsim.sim.firmware_run import run_firmware
 from hostsim.sim.scenario import Brick, load_scenario
 from hostsim.studies.montecarlo import gains_document
 from hostsim.world.brick_timing import AccessTimes, BrickClock, TimedIO

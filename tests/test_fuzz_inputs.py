@@ -224,7 +224,7 @@ def test_what_a_scenario_tells_the_firmware_is_checked_when_read(tmp_path, data)
     # a scenario's firmware_config, fuzzed where a config is: refused naming firmware_config.<field>
     # (or, for what JSON cannot hold, the place in the file), or what the simulation builds from it
     # is a configuration the firmware accepts
-    from hostsim.sim.firmware_run import firmware_config
+    from hostsim.sim.firmware_build import firmware_config
     path = tmp_path / 'b.json'
     path.write_text('{"modes": ["firmware"], "firmware_config": %s}' % mutate(CONFIG, data))
     try:

@@ -85,7 +85,8 @@ def test_a_ctrl_c_during_a_firmware_run_ends_the_host_job(monkeypatch):
     import signal
     from hostsim.sim import firmware_run
     from hostsim.sim.scenario import load_scenario
-    real = firmware_run.World.on_sleep
+    from hostsim.world.lockstep import World
+    real = World.on_sleep
     calls = []
 
     def on_sleep(self, t_from, t_to):
@@ -93,7 +94,7 @@ def test_a_ctrl_c_during_a_firmware_run_ends_the_host_job(monkeypatch):
         if len(calls) == 300:
             os.kill(os.getpid(), signal.SIGINT)
         return real(self, t_from, t_to)
-    monkeypatch.setattr(firmware_run.World, "on_sleep", on_sleep)
+    monkeypatch.setattr(World, "on_sleep", on_sleep)
     with pytest.raises(KeyboardInterrupt):
         firmware_run.run_firmware(load_scenario("section8"), sysfs=False)
     assert 300 <= len(calls) < 2000       # it stopped soon after the signal, not at the run's end

@@ -120,7 +120,7 @@ def test_firmware_runs_of_the_paper_scenarios_keep_the_invariants(name, duration
     n = len(run.t_s)
     assert n >= 1 and run.exit_code in (0, 6)                       # completed, or a safety stop
     assert np.all(np.abs(run.u[:, ACT]) <= U_MAX + 1e-9)
-    assert np.all(np.abs(run.u_cmd[:, ACT]) <= U_MAX + 1e-9)
+    assert np.all(np.abs(run.u_applied[:, ACT]) <= U_MAX + 1e-9)
     # The estimate starts at the start pose the firmware is told, at rest, not at the
     # scenario's x~(0).
     np.testing.assert_allclose(run.xhat[0, 2:5], sc.x0_si[2:5], atol=1e-9)

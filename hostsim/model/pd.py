@@ -25,7 +25,7 @@ difference Appendix D shows.
 Where the baseline runs:
 - linear and nonlinear modes: u = -K_pd y, the measurement itself (hostsim.sim.linear_sim);
 - firmware in the loop: the firmware has one law, u = -K x~ - K_w w^, so it is given a
-  gains document with K = K_pd and K_w = 0 (hostsim.sim.firmware_run.pd_gains_document): the PD acts on
+  gains document with K = K_pd and K_w = 0 (hostsim.sim.firmware_build.pd_gains_document): the PD acts on
   the estimate x~, which equals y after a few ticks (detector poles at 0.2; with C = I and
   L2 = E G_w the estimate's error does not depend on the disturbance).
 """

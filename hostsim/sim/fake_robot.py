@@ -33,7 +33,7 @@ bias, until the firmware switches it to GYRO-G&A; the first samples after the sw
 still the old mode's (hostsim.world.fake_ev3.GYRO_MODE_SWITCH_S), as on the real sensor.
 
 The firmware must be told the start pose, gyro mounting and wheel radius: --write-config
-FILE writes the matching firmware configuration (hostsim.sim.firmware_run.firmware_config; realtime
+FILE writes the matching firmware configuration (hostsim.sim.firmware_build.firmware_config; realtime
 priority 0), for `--config` or for `make deploy CONFIG=FILE`.
 
 Prints "fake_robot: ready ..." once the tree exists, what the brick shows (its status lights
@@ -53,7 +53,7 @@ import numpy as np
 
 from hostsim.errors import TipbotError
 from hostsim.world.fake_ev3 import DEFAULT_MOTOR_PORTS, FakeEV3, FakeEV3Error
-from hostsim.sim.firmware_run import firmware_config
+from hostsim.sim.firmware_build import firmware_config
 from hostsim.model.equations import RobotModel, state_scale_to_si
 from hostsim.model.params import load_params, scaled_params
 from hostsim.world.plant import Plant, disturbance_at

@@ -23,7 +23,7 @@ class RunResult:
     w_hat: Optional[np.ndarray] = None   # its disturbance estimate (n x 5, V)
     u_unsat: Optional[np.ndarray] = None  # the law's output before saturation (n x 5, V)
     # The firmware in the loop only:
-    u_cmd: Optional[np.ndarray] = None   # the inputs it applied (n x 5, V)
+    u_applied: Optional[np.ndarray] = None   # the inputs it applied (n x 5, V)
     exit_code: Optional[int] = None
     stop_reason: Optional[str] = None
     header: Optional[dict] = None        # its log's header

@@ -205,7 +205,7 @@ class Brick:
 
     @property
     def ideal(self):
-        """Every effect off: today's world (hostsim.sim.firmware_run.World)."""
+        """Every effect off: today's world (hostsim.world.lockstep.World)."""
         return self == Brick()     # sources do not compare
 
 

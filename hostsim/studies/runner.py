@@ -14,7 +14,8 @@ import numpy as np
 
 from hostsim.sim import metrics as metrics_mod
 from hostsim.sim.metrics import STATE_UNIT_GROUPS
-from hostsim.sim.firmware_run import pd_gains_document, run_firmware
+from hostsim.sim.firmware_build import pd_gains_document
+from hostsim.sim.firmware_run import run_firmware
 from hostsim.sim.linear_sim import simulate_linear, simulate_nonlinear
 from hostsim.model.pd import pd_for_gains
 from tipbot_fw.gains import load_gains
