@@ -98,3 +98,21 @@ def test_a_ctrl_c_during_a_firmware_run_ends_the_host_job(monkeypatch):
     with pytest.raises(KeyboardInterrupt):
         firmware_run.run_firmware(load_scenario("section8"), sysfs=False)
     assert 300 <= len(calls) < 2000       # it stopped soon after the signal, not at the run's end
+
+
+def test_the_world_lets_go_where_the_sessions_own_timing_says():
+    # the session records its calibration's end and its loop's start in the log's header; the
+    # read-back refuses a world that let go outside them (the lock-step broken)
+    import types
+    from hostsim.sim.firmware_build import SimulationError
+    from hostsim.sim.firmware_readback import check_timing
+    from hostsim.sim.scenario import load_scenario
+    run = run_firmware(load_scenario("section7"), sysfs=False, keep_rows=False)
+    timing = run.header["timing"]
+    assert timing["calibration_start_s"] < timing["calibration_end_s"] <= timing["loop_start_s"]
+    assert timing["calibration_end_s"] == pytest.approx(1.095, abs=1e-9)      # 0.1 s settle + 1 s at 5 ms
+    world = types.SimpleNamespace(released=True, t_release_s=timing["calibration_end_s"])
+    check_timing(world, run.header, 0.005)
+    world.t_release_s = timing["calibration_end_s"] - 0.005       # a tick early: the calibration saw it move
+    with pytest.raises(SimulationError, match="let go at"):
+        check_timing(world, run.header, 0.005)

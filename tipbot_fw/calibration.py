@@ -38,6 +38,13 @@ def sample_counts(cal_config, period_s):
             max(2, int(round(cal_config['duration_s'] / period_s))))
 
 
+def window_s(cal_config, period_s):
+    """Seconds from the calibration's first sample to its last, as it schedules them (the
+    session records when it ended; the host's simulated hand holds the robot this long)."""
+    settle, n = sample_counts(cal_config, period_s)
+    return (settle + n - 1) * period_s
+
+
 def measure_gyro(devices, clock, period_s, cal_config):
     """Sample the gyro every period_s: settle_s unused, then duration_s -> GyroCalibration
     (no verdict)."""

@@ -140,9 +140,13 @@ def run_session(devices, gains, config, clock, log_path=None, duration_s=None,
         cal_config = config['gyro_calibration']
         cues.hold_still(cal_config['settle_s'] + cal_config['duration_s'])
         heartbeat.arm()
+        t_start = clock.now()
         cal = calibrate_gyro(devices, BeatingClock(clock, heartbeat), gains.ts_s, cal_config)
         heartbeat.disarm()      # until the loop's first tick (ControlLoop.run): no motor driven yet
-        learnt({'calibration': cal.as_dict()})
+        # the session's own timing (the clock's seconds): the calibration's first and last
+        # samples, the loop's first tick (at the end); a simulated hand lets go at the last sample
+        run['timing'] = {'calibration_start_s': t_start, 'calibration_end_s': clock.now()}
+        learnt({'calibration': cal.as_dict(), 'timing': dict(run['timing'])})
         core.set_gyro_bias(cal.gyro_bias_dps)
         rows.first_info = core.header       # the encoder zeros and the start estimate, with the first rows
         run['loop'] = ControlLoop(devices, core, clock, rows, gains.ts_s, bv,
@@ -172,6 +176,10 @@ def run_session(devices, gains, config, clock, log_path=None, duration_s=None,
             end.update(core.header())
         if 'loop' in run:
             end['loop'] = run['loop'].stats.as_dict()
+            if run['loop'].stats.ticks:     # the clock at the first tick's start (the log's log_t0)
+                run['timing']['loop_start_s'] = rows.t0
+        if 'timing' in run:
+            end['timing'] = run['timing']
         if telemetry is not None:
             end['telemetry'] = telemetry.summary()
         rows.flush()

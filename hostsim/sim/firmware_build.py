@@ -20,7 +20,7 @@ from hostsim.world.lockstep import PLANT_DT_S, BrickWorld, World
 from hostsim.world.plant import Plant
 from hostsim.world.sensors import BatteryModel, EncoderModel, SensorModel
 from tipbot_fw import config as fw_config
-from tipbot_fw.calibration import sample_counts
+from tipbot_fw import calibration
 from tipbot_fw.drive.course import CourseError, parse_course
 from tipbot_fw.drive.plan import drive_problem
 from tipbot_fw.gains import gains_from_dict, load_gains
@@ -63,9 +63,10 @@ def firmware_config(sc, rw_m, overrides=None):
 
 
 def calibration_end_s(config, ts_s):
-    """When the session's gyro calibration takes its last sample (see tipbot_fw.calibration)."""
-    settle, n = sample_counts(config["gyro_calibration"], ts_s)
-    return (settle + n - 1) * ts_s
+    """When the session's gyro calibration takes its last sample, the clock starting at 0: what
+    the simulated hand holds the robot for (the firmware's schedule, tipbot_fw.calibration; the
+    run's log records when it did: read_back checks the two agree)."""
+    return calibration.window_s(config["gyro_calibration"], ts_s)
 
 
 def pd_gains_document(doc, k_pd_file):
@@ -167,6 +168,6 @@ def brick_world(sc, plant, sensors, signs, p, config, ts_s, t_release, fake, por
     battery = BatteryModel(s.battery_v, b.battery_r_ohm, b.battery_quantum_v,
                            [p[r + "_ke_v_s"] for r in MOTOR_ROLES], [p[r + "_ra_ohm"] for r in MOTOR_ROLES])
     times = AccessTimes(b, np.random.default_rng([sc.seed, STREAM_TIMING])) if b.timed else None
-    settle, n = sample_counts(config["gyro_calibration"], ts_s)
+    settle, n = calibration.sample_counts(config["gyro_calibration"], ts_s)
     return BrickWorld(sc, plant, sensors, encoders, gyro, battery, signs, ts_s, t_release, settle + n,
                       fake=fake, ports=ports, rng=rng, times=times)

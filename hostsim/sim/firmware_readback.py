@@ -7,6 +7,7 @@ import dataclasses
 
 import numpy as np
 
+from hostsim.sim.firmware_build import SimulationError
 from hostsim.sim.result import RunResult
 from tipbot_fw.record import logfile
 from tipbot_fw.record import replay as fw_replay
@@ -79,10 +80,24 @@ def wheel_origin(sc, config):
     return np.array([sc.x0_si[0] - rw * th1_told, sc.x0_si[1] - rw * th1_told])
 
 
+def check_timing(world, header, ts_s):
+    """The world let the robot go where the session says its calibration ended and its loop
+    started (the run's header: its ``timing``): no earlier than the last calibration sample, no
+    later than the loop's first tick. SimulationError otherwise (the lock-step is broken)."""
+    timing = header.get("timing") or {}
+    end, loop = timing.get("calibration_end_s"), timing.get("loop_start_s")
+    if not world.released or end is None or loop is None:
+        return
+    if not end - 1e-9 <= world.t_release_s <= loop + ts_s + 1e-9:
+        raise SimulationError("the world let go at %.9f s, the firmware calibrated until %.9f s and started its "
+                              "loop at %.9f s" % (world.t_release_s, end, loop))
+
+
 def read_back(run, code, header, log_header=None, rows=None):
     """The RunResult of a finished run (hostsim.sim.firmware_build.FirmwareRun): the world's
     records, and with the firmware's log (its header and rows) the firmware's side."""
     world = run.world
+    check_timing(world, header, run.gains.ts_s)
     if not world.released:                      # stopped at its first tick
         world._record(world.t_release_s)
     d_origin = wheel_origin(run.sc, run.config)
