@@ -220,3 +220,52 @@ def test_every_layout_table_in_the_docs_lists_every_module():
 def test_a_layout_table_is_read_row_by_row():
     text = LAYOUT_HEADER + "\n|---|---|---|\n| `pkg.a` | x | `m1` (the `Thing`), `m2` |\n| top level | | `main` |\n\nafter"
     assert layout_tables(text) == [{"pkg.a": {"m1", "Thing", "m2"}, "top level": {"main"}}]
+
+
+def module_graph(top_dir, top):
+    """{module: set of the package's modules it imports} (function-level imports included;
+    `from a.b import c` counts as a.b.c where c is a module)."""
+    names = {os.path.relpath(p, REPO)[:-3].replace(os.sep, ".").replace(".__init__", "") for p in modules(top_dir)}
+    graph = {}
+    for path in modules(top_dir):
+        here = os.path.relpath(path, REPO)[:-3].replace(os.sep, ".").replace(".__init__", "")
+        with open(path) as f:
+            tree = ast.parse(f.read(), path)
+        out = set()
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Import):
+                out |= {a.name for a in node.names}
+            elif isinstance(node, ast.ImportFrom) and node.module and not node.level:
+                out |= {node.module + "." + a.name if node.module + "." + a.name in names else node.module
+                        for a in node.names}
+        graph[here] = {m for m in out if m in names and m != here and not here.startswith(m + ".")}
+    return graph
+
+
+def cycles(graph):
+    """Every import circle of the graph, as a list of modules (one per circle found)."""
+    found, state = [], {}
+
+    def visit(m, stack):
+        state[m] = 1
+        for n in sorted(graph.get(m, ())):
+            if state.get(n) == 1:
+                found.append(stack[stack.index(n):] + [n])
+            elif n not in state:
+                visit(n, stack + [n])
+        state[m] = 2
+    for m in sorted(graph):
+        if m not in state:
+            visit(m, [m])
+    return found
+
+
+@pytest.mark.parametrize("top", ["hostsim", "tipbot_fw"])
+def test_no_import_circle(top):
+    found = cycles(module_graph(os.path.join(REPO, top), top))
+    assert not found, "\n".join(" -> ".join(c) for c in found)
+
+
+def test_an_import_circle_is_found():
+    assert cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c", "a"]]
+    assert cycles({"a": {"b"}, "b": set()}) == []

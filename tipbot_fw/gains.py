@@ -375,8 +375,14 @@ def load_gains(path, expected_ts_s=None):
 
     expected_ts_s: if given, the file's ts_s must equal it.
     """
+    return load_gains_document(path, expected_ts_s)[1]
+
+
+def load_gains_document(path, expected_ts_s=None):
+    """-> (the file's document as read, its Gains): load_gains for a tool that also derives
+    another document from the file's (the host's baselines); the document has passed every check."""
     doc, data = fields.read_json(path, GainsError)
-    return gains_from_dict(doc, path, hashlib.sha256(data).hexdigest(), expected_ts_s)
+    return doc, gains_from_dict(doc, path, hashlib.sha256(data).hexdigest(), expected_ts_s)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -41,6 +41,7 @@ import hostsim
 import numpy as np
 
 from hostsim.paths import REPO_ROOT, out_dir
+from hostsim.studies.montecarlo import FINAL_TH1_RAD, gains_document, warm_models
 from tipbot_fw.config import MAX_LOST_S, MAX_STALL_BOUNDS_S
 
 DEFAULT_GAINS = ("gains/paper.json", "gains/physical.json")
@@ -124,14 +125,12 @@ def margin_scenario(base, key, value, ts_s):
 
 
 def balances(run):
-    from hostsim.studies.montecarlo import FINAL_TH1_RAD
     from hostsim.sim.metrics import UPRIGHT_LIMIT_RAD
     th1 = np.abs(run.x[:, 2])
     return bool(run.completed and np.all(th1 < UPRIGHT_LIMIT_RAD) and th1[-1] < FINAL_TH1_RAD)
 
 
 def _gains(path):
-    from hostsim.studies.montecarlo import gains_document
     return gains_document(path, False)
 
 
@@ -238,7 +237,6 @@ def run_margins(gains_paths=DEFAULT_GAINS, coarse=False, ablation_gains=None, jo
     duration_s: other than the scenario's 30 s (for quick looks and tests only)."""
     from hostsim.sim.parallel import default_jobs, run_tasks
     from hostsim.sim.scenario import Brick, load_scenario
-    from hostsim.studies.montecarlo import warm_models
 
     realistic = load_scenario(BASE_SCENARIO)
     if duration_s is not None:
@@ -367,7 +365,7 @@ def write(res, out):
     os.makedirs(out, exist_ok=True)
     with open(os.path.join(out, "margins.json"), "w") as f:
         json.dump(res, f, indent=1, sort_keys=True)
-    return plots.margins_figure(res, os.path.join(out, "margins.png"))
+    return plots.margins_figure(res, os.path.join(out, "margins.png"), MARGINS)
 
 
 def main(argv=None):

@@ -18,7 +18,7 @@ from hostsim.sim.firmware_build import pd_gains_document
 from hostsim.sim.firmware_run import run_firmware
 from hostsim.sim.linear_sim import simulate_linear, simulate_nonlinear
 from hostsim.model.pd import pd_for_gains
-from tipbot_fw.gains import load_gains
+from tipbot_fw.gains import load_gains, load_gains_document
 
 
 def run_scenario(sc, modes=None, sysfs=True, say=None):
@@ -37,18 +37,13 @@ def run_scenario(sc, modes=None, sysfs=True, say=None):
             elif mode == "nonlinear":
                 run = simulate_nonlinear(gs, sc, k_pd)
             else:
-                doc = None if k_pd_file is None else pd_gains_document(_document(sc.gains), k_pd_file)
+                doc = None if k_pd_file is None else pd_gains_document(load_gains_document(sc.gains)[0], k_pd_file)
                 # the brick's timing and mode writes act through the fake EV3 tree only
                 run = run_firmware(sc, gains_doc=doc, sysfs=sysfs or sc.brick.needs_sysfs)
             run = runs[label] = dataclasses.replace(run, wall_s=time.perf_counter() - t0)
             if say:
                 say("  %-20s %6.2f s simulated in %5.2f s" % (label, run.t_s[-1], run.wall_s))
     return gs, runs
-
-
-def _document(path):
-    with open(path) as f:
-        return json.load(f)
 
 
 def ideal_metrics(sc, gs):
