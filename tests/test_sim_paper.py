@@ -10,6 +10,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from hostsim.errors import TipbotError
 from hostsim.sim import metrics
 from hostsim.sim.firmware_run import run_firmware
 from hostsim.sim.linear_sim import simulate_linear, simulate_nonlinear
@@ -164,3 +165,25 @@ def test_the_reference_governor_keeps_section7_within_the_motors():
     assert gov.peak0_v < U_MAX and gov.kappa == 1.0
     # the rest point it starts from: the robot rolled ahead, bent links held by their motors
     assert gov.x_e[0] > 0.1 and np.any(gov.u_e != 0)
+
+
+def test_the_host_modes_run_the_firmwares_default_estimator():
+    # linear and nonlinear with the Kalman filter of the gains' kalman block (in floats, ideal
+    # measurement): they balance Section 8 as the firmware does, their estimate converges, and
+    # the same scenario's firmware run (fixed point, quantized sensors) stays close to them
+    sc = load_scenario("section8")
+    g = load_gains(sc.gains)
+    fw = run_firmware(sc, sysfs=False)
+    for sim in (simulate_linear, simulate_nonlinear):
+        run = sim(g, sc, estimator="kalman")
+        assert run.completed
+        late = slice(3 * len(run.t_s) // 4, None)
+        assert np.abs(run.xhat[late] - run.x[late]).max() < 1e-5
+        assert np.abs(run.u[:, ACT]).max() <= U_MAX + 1e-12
+        n = min(len(run.t_s), len(fw.t_s))
+        assert np.abs(run.x[:n, 2] - fw.x[:n, 2]).max() < 0.01      # th1 within 10 mrad of the firmware's
+    with pytest.raises(TipbotError, match="estimator"):
+        simulate_linear(g, sc, estimator="observer")
+    # `python -m hostsim run/sim --host-estimator kalman`: its own labels, the scenario's bounds on them
+    _, runs = run_scenario(sc, modes=["nonlinear", "firmware"], sysfs=False, host_estimator="kalman")
+    assert sorted(runs) == ["firmware/optimal", "nonlinear-kalman/optimal"]

@@ -113,6 +113,10 @@ def main(argv=None):
                     "and the margins")
     ap.add_argument("--no-margins", action="store_true", help="skip the margins and the effects' costs")
     ap.add_argument("--jobs", type=int, default=None, help="worker processes (default: all cores)")
+    ap.add_argument("--host-estimator", choices=("detector", "kalman"), default="detector",
+                    help="the linear and nonlinear runs' estimator: the paper's detector (default, the paper's "
+                         "simulation) or the firmware's default, the Kalman filter, to compare the firmware's "
+                         "runs with it (make sim SIM_ARGS='--host-estimator kalman')")
     args = ap.parse_args(argv)
     final = args.out
     # the new report is made beside the old one and swapped in at the end: an interrupted or
@@ -161,7 +165,7 @@ def _study(args, final):
             sc = load_scenario(name)
             say("scenario %s" % name)
             docs.append(runner.run_and_write(sc, os.path.join(args.out, sc.name), sysfs=args.device == "sysfs",
-                                             say=say))
+                                             say=say, host_estimator=args.host_estimator))
         return docs
 
     docs = run_all(args.scenarios)
