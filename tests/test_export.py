@@ -87,9 +87,9 @@ def test_a_kalman_log_exports_the_physical_columns_the_replay_rebuilds(tmp_path,
     sig = signals(header, rows, gains)
     assert names[:len(header['columns'])] == [export.column_name(c['name'], c['unit']) for c in header['columns']]
     np.testing.assert_array_equal(values[:, :len(header['columns'])], rows)
-    for name, expected in (('xt_th1_rad', sig['x_hat'][:, 2]), ('xt_d_r_m', sig['x_hat'][:, 0]),
-                           ('w_r_V', sig['w_hat'][:, 0]), ('u_th3_V', sig['u'][:, 4]),
-                           ('u_cmd_l_V', sig['u_cmd'][:, 1])):
+    for name, expected in (('xt_th1_rad', sig.x_hat[:, 2]), ('xt_d_r_m', sig.x_hat[:, 0]),
+                           ('w_r_V', sig.w_hat[:, 0]), ('u_th3_V', sig.u[:, 4]),
+                           ('u_cmd_l_V', sig.u_cmd[:, 1])):
         np.testing.assert_array_equal(values[:, names.index(name)], expected, err_msg=name)
     assert np.ptp(values[:, names.index('xt_th1_rad')]) > 1e-3     # not vacuous: the estimate moved
     # link 1 has no motor: no input, disturbance or command columns that would always read 0

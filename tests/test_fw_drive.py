@@ -249,9 +249,9 @@ def test_the_replayed_law_output_includes_the_reference(fake, tmp_path, capsys):
                      '--log', log, '--sysfs-root', fake.sysfs_root, '--course', course]) == 0
     header, rows = read_log(log)
     sig = signals(header, rows, load_gains(PHYSICAL_GAINS))
-    applied, law = sig['u'][1:, [0, 1, 3, 4]], sig['u_cmd'][1:, [0, 1, 3, 4]]
+    applied, law = sig.u[1:, [0, 1, 3, 4]], sig.u_cmd[1:, [0, 1, 3, 4]]
     duty_v = 8.2 / 100.0
     inside = np.abs(law) < 7.0          # not saturated
     assert inside.sum() > 100
     assert np.abs(applied[inside] - law[inside]).max() <= duty_v * 0.5 + 1e-6
-    assert np.abs(sig['reference'][:, 2]).max() > 0.1
+    assert np.abs(sig.reference[:, 2]).max() > 0.1

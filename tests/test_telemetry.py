@@ -60,9 +60,9 @@ def logged_values(header, rows, gains):
                                                 'duty_2', 'duty_3')}
     sig = signals(header, rows, gains)
     for i, s in enumerate(vocabulary.STATE_NAMES):
-        out['xt_' + s] = sig['x_hat'][:, i]
+        out['xt_' + s] = sig.x_hat[:, i]
     for name, j in zip(('r', 'l', 'th2', 'th3'), (0, 1, 3, 4)):
-        out['w_' + name], out['u_' + name] = sig['w_hat'][:, j], sig['u'][:, j]
+        out['w_' + name], out['u_' + name] = sig.w_hat[:, j], sig.u[:, j]
     assert sorted(out) == sorted(telemetry.DECODED)
     return out
 

@@ -73,7 +73,7 @@ def test_watch_records_what_a_run_sends_and_draws_it(tmp_path):
             assert float(r[name]) == rows[int(r['tick']), col(header, column)], name
         for name, (key, j) in (('xt_th1_rad', ('x_hat', 2)), ('xt_d_l_m', ('x_hat', 1)), ('u_r_V', ('u', 0)),
                                ('w_r_V', ('w_hat', 0))):
-            assert float(r[name]) == sig[key][int(r['tick']), j], name
+            assert float(r[name]) == getattr(sig, key)[int(r['tick']), j], name
     assert os.path.getsize(png) > 20000
     # a recording shows again, from the file
     again = str(tmp_path / 'again.png')

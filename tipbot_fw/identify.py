@@ -33,7 +33,7 @@ CLI's (tipbot_fw.guard.safety): 0 done, 1 bug, 2 invalid arguments or config, 3 
 port, 4 refused (low battery, not confirmed), 5 a read or write failed, 130 Ctrl-C, 143
 SIGTERM/SIGHUP.
 
-The host fits the log: ``python -m hostsim identify LOG`` (hostsim/identify.py).
+The host fits the log: ``python -m hostsim identify LOG`` (hostsim/logs/identify.py).
 
 Python 3.5 + the standard library (python-ev3dev2 at start-up only).
 """

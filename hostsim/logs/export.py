@@ -87,13 +87,13 @@ def physical_columns(log_path, header, rows, gains_path=None):
                           % (log_path, str(header["gains"]["sha256"])[:16]))
     try:
         sig = fw_replay.signals(header, rows, load_gains(path))
-        bias_dps = sig["gyro_bias"] * (180.0 / np.pi) * header["config"]["gyro_sign"]
+        bias_dps = sig.gyro_bias * (180.0 / np.pi) * header["config"]["gyro_sign"]
     except GainsError as e:
         raise ExportError(str(e))
     except (KeyError, TypeError, ValueError, IndexError) as e:
         raise ExportError("%s: a header this version cannot interpret: %s: %s" % (log_path, type(e).__name__, e))
     act = list(ACTUATED_INPUTS)
-    return PHYSICAL, np.hstack([sig["x_hat"], sig["w_hat"][:, act], sig["u"][:, act], sig["u_cmd"][:, act],
+    return PHYSICAL, np.hstack([sig.x_hat, sig.w_hat[:, act], sig.u[:, act], sig.u_cmd[:, act],
                                 bias_dps[:, None]])
 
 

@@ -374,7 +374,7 @@ def replay_log(log_path, gains_path=None, logged_gains_path=None, tol=DEFAULT_TO
         mine = fw_replay.signals(header, rows, r.logged_gains or g)
         theirs = fw_replay.signals(r.other_header, r.other, g)
         for name, j in zip(vocabulary.ACTUATED, ACTUATED_INPUTS):
-            d = theirs["u"][:, j] - mine["u"][:, j]
+            d = theirs.u[:, j] - mine.u[:, j]
             r.other_u_diff[name] = (float(np.max(np.abs(d))), float(np.sqrt(np.mean(d * d))))
         r.other_sat = _sat_fraction(r.other, [c["name"] for c in r.other_header["columns"]])
     return r
@@ -460,7 +460,7 @@ def plot(r, out_dir):
         fig, axes = plt.subplots(nrows, ncols, figsize=(11, 2.2 * nrows + 0.8), sharex=True, squeeze=False)
         for ax, (key, j, name, unit) in zip(axes.flat, panels):
             for label, sig, style in series:
-                ax.plot(t, np.insert(sig[key][:, j], starts, np.nan), label=label, **style)
+                ax.plot(t, np.insert(getattr(sig, key)[:, j], starts, np.nan), label=label, **style)
             for k, (a, b) in enumerate(gaps):
                 ax.axvspan(a, b, color="0.85", zorder=0, label="not kept" if k == 0 else None)
             ax.set_ylabel("%s [%s]" % (name, unit))

@@ -131,12 +131,28 @@ def design_gains(variant, params, ts_s=DEFAULT_TS_S, detector_poles=None, noise=
                                    [cm_per_unit] * 2 + [1] * 3 + [cm_per_unit] * 2 + [1] * 3)
     chosen = robust_design(variant, params, ts_s, a, b, q, r, e_mat, noise)
     l1, l2, g_w, det_eig = design.robust_detector(a, b, c, e_mat, ACTUATED_INPUTS, detector_poles)
-    return GainDesign(variant=variant, model=model, ts_s=float(ts_s), A=a, B=b, C=c, E=e_mat, Q=q, R=chosen["R"],
-                      r_wheel_scale=chosen["r_wheel_scale"], margins=chosen["margins"],
-                      K=chosen["K"], P=chosen["P"], K_w=chosen["K_w"], L1=l1, L2=l2, G_w=g_w,
-                      closed_loop_eigenvalues=chosen["eig"], detector_eigenvalues=det_eig,
-                      structure=design.structure_report(a, b, c, ACTUATED_INPUTS), kalman=chosen["kalman"],
-                      state_feedback_radii=state_feedback_radii(variant, params, ts_s, chosen["K"]))
+    return GainDesign(variant=variant, model=model, ts_s=float(ts_s), A=a, B=b, C=c, E=e_mat, Q=q, R=chosen.R,
+                      r_wheel_scale=chosen.r_wheel_scale, margins=chosen.margins,
+                      K=chosen.K, P=chosen.P, K_w=chosen.K_w, L1=l1, L2=l2, G_w=g_w,
+                      closed_loop_eigenvalues=chosen.eig, detector_eigenvalues=det_eig,
+                      structure=design.structure_report(a, b, c, ACTUATED_INPUTS), kalman=chosen.kalman,
+                      state_feedback_radii=state_feedback_radii(variant, params, ts_s, chosen.K))
+
+
+@dataclasses.dataclass(frozen=True)
+class RobustLaw:
+    """What robust_design chose: the wheel inputs' weight factor and the weights R it gave, the
+    LQR (K, its Riccati solution P, the closed loop's eigenvalues), K_w, the Kalman filter and law
+    (hostsim.model.kalman.KalmanDesign) and their margins on the uncertainty set (None until
+    margins are known)."""
+    r_wheel_scale: float
+    R: np.ndarray
+    K: np.ndarray
+    P: np.ndarray
+    eig: np.ndarray
+    K_w: np.ndarray
+    kalman: "kalman.KalmanDesign"
+    margins: Optional["kalman.Margins"] = None
 
 
 def robust_design(variant, params, ts_s, a, b, q, r, e_mat, noise=None):
@@ -146,7 +162,7 @@ def robust_design(variant, params, ts_s, a, b, q, r, e_mat, noise=None):
     modes all decay and oscillate with enough damping on every plant of kalman.UncertaintySet
     (kalman.Margins.robust), the physical variant's law with integral action first (law_design),
     without it if no step holds with it. When none does, the plain design (both factors 1, the
-    integrators if the variant has them). -> dict."""
+    integrators if the variant has them). -> RobustLaw."""
     uncertainty = kalman.UncertaintySet(params, ts_s)
     t = state_scale_to_si(variant)
     ti = np.linalg.inv(t)
@@ -165,12 +181,12 @@ def robust_design(variant, params, ts_s, a, b, q, r, e_mat, noise=None):
             kd = kalman.design_kalman(t @ a @ ti, t @ b, k @ ti, k_w, params["rw_m"], ts_s, ns,
                                       integral=None if k_z is None else kalman.integral_law(
                                           k_z / t[0, 0], params["u_max_v"]))
-            found = dict(r_wheel_scale=factor, R=r_try, K=k, P=p, eig=eig, K_w=k_w, kalman=kd)
+            found = RobustLaw(r_wheel_scale=factor, R=r_try, K=k, P=p, eig=eig, K_w=k_w, kalman=kd)
             if plain is None:
                 plain = found
             if uncertainty.holds(kd):
-                return dict(found, margins=uncertainty.margins(kd))
-    return dict(plain, margins=uncertainty.margins(plain["kalman"]))
+                return dataclasses.replace(found, margins=uncertainty.margins(kd))
+    return dataclasses.replace(plain, margins=uncertainty.margins(plain.kalman))
 
 
 # Integral action on the wheel positions (tipbot_fw.cores.kalman, "Integral action"), in the designs

@@ -59,9 +59,9 @@ def firmware_side(header, rows, gains, d_origin, n):
     sig = fw_replay.signals(header, rows[:n], gains)
     shift = np.zeros(10)
     shift[:2] = d_origin
-    xhat = sig["x_hat"] + shift
+    xhat = sig.x_hat + shift
     # replay.signals: u the inputs applied, u_cmd the law's output before saturation
-    w_hat, u_applied, u_unsat = sig["w_hat"], sig["u"], sig["u_cmd"]
+    w_hat, u_applied, u_unsat = sig.w_hat, sig.u, sig.u_cmd
     names = [c["name"] for c in header["columns"]]
     flags, tick = (rows[:n, names.index(c)][:, None] for c in ("flags", "tick_s"))
     if len(xhat) < n:

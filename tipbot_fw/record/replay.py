@@ -124,11 +124,20 @@ def _reader(layout):
     return read
 
 
+class Signals(object):
+    """The estimates and inputs of a log's rows, SI (signals()): x_hat (n x 10), w_hat (n x 5,
+    V), u (the applied inputs, n x 5, V), u_cmd (the law's output before rounding and
+    saturation, n x 5, V), gyro_bias (n, rad/s: the Kalman core's; None for the detector's),
+    reference (n x 6, kalman_rows.REFERENCE_COLUMNS: a driven run's; else None)."""
+    __slots__ = ('x_hat', 'w_hat', 'u', 'u_cmd', 'gyro_bias', 'reference')
+
+    def __init__(self, x_hat, w_hat, u, u_cmd, gyro_bias=None, reference=None):
+        self.x_hat, self.w_hat, self.u, self.u_cmd = x_hat, w_hat, u, u_cmd
+        self.gyro_bias, self.reference = gyro_bias, reference
+
+
 def signals(header, rows, gains):
-    """The estimates and inputs of a log's rows, SI: {'x_hat': n x 10, 'w_hat': n x 5 (V),
-    'u': the applied inputs (n x 5, V), 'u_cmd': the law's output before rounding and
-    saturation (n x 5, V), and for a driven run 'reference' (n x 6: kalman_rows.REFERENCE_COLUMNS)},
-    for either core."""
+    """The estimates and inputs of a log's rows, for either core -> Signals."""
     names = [c['name'] for c in header['columns']]
     col = names.index
     pol = motor_polarity(header['config'])
@@ -139,7 +148,7 @@ def signals(header, rows, gains):
         u[:, ACTUATED_INPUTS[k]] = pol[k] * rows[:, col(name)] * volts_per_duty
     if header.get('estimator', 'detector') == 'detector':
         block = lambda first, width: rows[:, col(first):col(first) + width]
-        return {'x_hat': block('xt_d_r', 10), 'w_hat': block('w_r', 5), 'u': u, 'u_cmd': block('u_cmd_r', 5)}
+        return Signals(block('xt_d_r', 10), block('w_r', 5), u, block('u_cmd_r', 5))
     kal = gains.kalman
     xi = np.column_stack([rows[:, col('xi_' + s)] for s in kal.state_names])
     x = xi.copy()
@@ -152,7 +161,7 @@ def signals(header, rows, gains):
         w_hat[:, ACTUATED_INPUTS[i]] = x[:, 10 + j]
     u_cmd = np.zeros((n, 5))
     u_cmd[:, ACTUATED_INPUTS] = -x.dot(kal.K.T)
-    out = {'x_hat': x[:, :10], 'w_hat': w_hat, 'u': u, 'u_cmd': u_cmd, 'gyro_bias': x[:, kal.n_filter - 1]}
+    out = Signals(x[:, :10], w_hat, u, u_cmd, x[:, kal.n_filter - 1])
     if 'ref_d_r' in names:
         # driving: u = -K_a (x^ - x_ref) + u_ff = -K_a x^ + K_a's wheel columns d_ref + G r
         # (tipbot_fw.cores.kalman, "Driving"); the reference as the log has it
@@ -161,5 +170,5 @@ def signals(header, rows, gains):
         if kal.reference is not None:
             extra += ref[:, 2:].dot(kal.reference.G.T)
         u_cmd[:, ACTUATED_INPUTS] += extra
-        out['reference'] = ref
+        out.reference = ref
     return out
