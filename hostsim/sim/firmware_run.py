@@ -88,7 +88,7 @@ def run_firmware(sc, gains_path=None, gains_doc=None, sysfs=True, log_path=None,
     run = build_run(sc, gains_path, gains_doc, sysfs, params, config_overrides)
     tmp = None
     if keep_rows and log_path is None:
-        tmp = tempfile.TemporaryDirectory(prefix="tipbot-fil-")
+        tmp = tempfile.TemporaryDirectory(prefix="tipbot-firmware-run-")
         log_path = os.path.join(tmp.name, "run.log")
     log_header = rows = None
     try:
