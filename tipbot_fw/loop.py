@@ -187,8 +187,9 @@ class ControlLoop(object):
 
     def _run(self, stats):
         """The ticks: the hot path, written out with locals (attribute and global lookups cost
-        real time on the brick); what a late tick and the work between ticks do are the cold
-        methods _late_tick and _between_ticks."""
+        real time on the brick); what a late tick and the housekeeping between ticks do are the
+        cold methods _late_tick and _housekeeping (the side task, every tick for a remote, stays
+        here)."""
         dev = self.devices
         read = dev.read_raw
         write = dev.write_duties
@@ -209,7 +210,16 @@ class ControlLoop(object):
         j2_max = float('inf')           # tick 0 has no previous reading
         gyro_max = GYRO_MAX_DPS
         pa = pb = pc = pd = 0
-        due = self._plan_between_ticks()    # the first tick with work between ticks
+        # the work between ticks: the side task's (every tick for a remote: here, as locals) and the
+        # housekeeping's (the log's chunks, the battery, the integrators: a method), each due in its tick
+        chores = self._plan_housekeeping()
+        side = self.side
+        side_due = 1
+        if side is None:
+            side, side_due = _NEVER, _NEVER(0)
+        due = chores if chores < side_due else side_due
+        min_slack = self._min_slack
+        side_wait = max(1, int(round(SIDE_WAIT_S / period)))
         stats.battery_v = check_battery(self.battery_v)
         core.set_battery(self.battery_v)
         hbt.publish_rail(core.dlim)
@@ -255,7 +265,11 @@ class ControlLoop(object):
                 else:
                     consecutive = 0
                 if k >= due:        # work between ticks: one comparison a tick until some is due
-                    due = self._between_ticks(k, release)
+                    if k >= chores:
+                        chores = self._housekeeping(k, release)
+                    if k >= side_due and (release - now() > min_slack or k - side_due >= side_wait):
+                        side_due = side(k)
+                    due = chores if chores < side_due else side_due
                 sleep_until(release)   # returns at once when late
         finally:
             log.count = stats.ticks = k
@@ -295,9 +309,9 @@ class ControlLoop(object):
             self.core.skip(missed)       # the model through the periods missed, duties held
         return release, consecutive
 
-    def _plan_between_ticks(self):
-        """The tick each part of the work between ticks is first due in (the module's
-        docstring) -> the first tick with any."""
+    def _plan_housekeeping(self):
+        """The tick each part of the housekeeping between ticks (the module's docstring) is first
+        due in -> the first tick with any."""
         period = self.period_s
         log = self.log
         self._skips = collections.deque()   # (release, seconds) of the periods skipped within the window
@@ -306,15 +320,13 @@ class ControlLoop(object):
         self._next_battery = self.battery_every
         self._wind_every = max(1, int(round(WIND_DOWN_S / period)))
         self._next_wind = self._wind_every
-        self._side, self._side_due = (_NEVER, _NEVER(0)) if self.side is None else (self.side, 1)
         self._min_slack = min(SLACK_S, SLACK_FRACTION * period)
-        self._side_wait = max(1, int(round(SIDE_WAIT_S / period)))
-        return min(self._next_flush, self._next_battery, self._side_due, self._next_wind)
+        return min(self._next_flush, self._next_battery, self._next_wind)
 
-    def _between_ticks(self, k, release):
-        """After tick k - 1's writes, the parts of the work between ticks that are due, each in
-        a tick that leaves slack before `release` or at once when it cannot wait (the module's
-        docstring) -> the next tick with any due."""
+    def _housekeeping(self, k, release):
+        """After tick k - 1's writes, the housekeeping that is due, each part in a tick that
+        leaves slack before `release` or at once when it cannot wait (the module's docstring):
+        the integrators' anti-windup, the log's chunks, the battery -> the next tick with any due."""
         log = self.log
         core = self.core
         now = self.clock.now
@@ -330,9 +342,7 @@ class ControlLoop(object):
         if k >= self._next_battery and (release - now() > min_slack or k - self._next_battery >= battery_every):
             self._read_battery(k)
             self._next_battery = k - k % battery_every + battery_every     # on the grid
-        if k >= self._side_due and (release - now() > min_slack or k - self._side_due >= self._side_wait):
-            self._side_due = self._side(k)
-        return min(self._next_flush, self._next_battery, self._side_due, self._next_wind)
+        return min(self._next_flush, self._next_battery, self._next_wind)
 
     def _read_battery(self, k):
         """The battery's reading after tick k - 1: plausible, the law rescaled when it changed;
