@@ -68,11 +68,9 @@ def load_design(gains_path, u_max_v=None):
     """-> dict: the gains' discrete model (SI), the law, the input limit and the push direction."""
     from hostsim.model.equations import RobotModel, state_scale_to_si
     from hostsim.world.plant import link_push_impulse
-    from tipbot_fw import fields
-    from tipbot_fw.gains import GainsError, gains_from_dict
+    from tipbot_fw.gains import load_gains_document
 
-    doc, _ = fields.read_json(gains_path, GainsError)
-    g = gains_from_dict(doc, gains_path)
+    doc, g = load_gains_document(gains_path)
     model = RobotModel(doc["model_variant"], doc["parameters"])
     q = np.zeros(5)
     x_push = np.zeros(10)
