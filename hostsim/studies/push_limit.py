@@ -325,7 +325,7 @@ def main(argv=None):
     ap.add_argument("--u-max-v", type=float, default=None,
                     help="the input limit in V (default: each gains file's u_max_v)")
     ap.add_argument("--validate", action="store_true",
-                    help="also track the LP's plan on the nonlinear physical plant at %g %% of the bound"
+                    help="also track the LP's plan on the nonlinear physical plant at %g %%%% of the bound"
                     % (100 * VALIDATE_FRACTION))
     ap.add_argument("--out", default=out_dir("push_limit"), help="output directory (default out/push_limit)")
     args = ap.parse_args(argv)
