@@ -16,7 +16,7 @@ COMMANDS = {
     "describe": ("hostsim.model.description", "describe your robot: scale and ruler entries -> a parameters file"),
     "paper-check": ("hostsim.model.paper_check", "the paper variant against Appendix C (make paper-check)"),
     "pd": ("hostsim.model.pd", "the Appendix D PD baseline designed for a gains file"),
-    "motor-sim": ("hostsim.world.motor_sim", "a simulated motor behind a fake EV3 (identify logs without a brick)"),
+    "motor-sim": ("hostsim.sim.motor_sim", "a simulated motor behind a fake EV3 (identify logs without a brick)"),
     "fake-robot": ("hostsim.sim.fake_robot", "the simulated robot behind a fake EV3 tree, in real time"),
     "run": ("hostsim.studies.runner", "run one scenario file: metrics.json, plots, summary"),
     "sim": ("hostsim.studies.sim_study", "the paper's scenarios + robustness summary -> out/sim/ (make sim)"),

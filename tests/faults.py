@@ -14,7 +14,7 @@ import time
 
 from hostsim.world.fake_ev3 import FakeEV3
 from tipbot_fw.config import SYSFS_ROOT_ENV
-from tipbot_fw.logfile import read_log
+from tipbot_fw.record.logfile import read_log
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 PORTS = ('outA', 'outB', 'outC', 'outD')

@@ -11,11 +11,14 @@ import math
 import numpy as np
 import scipy.linalg
 
-from tipbot_fw.bench import synthetic_gains_doc
-from tipbot_fw.clock import VirtualClock
+from hostsim.model.kalman import design_kalman
 from tipbot_fw.config import config_from_overrides
-from tipbot_fw.devices import MemoryDevices
-from tipbot_fw.gains import ACTUATED_INPUTS, gains_from_dict
+from tipbot_fw.cores.kalman_design import spectral_radius
+from tipbot_fw.gains import gains_from_dict
+from tipbot_fw.io.clock import VirtualClock
+from tipbot_fw.io.devices import MemoryDevices
+from tipbot_fw.vocabulary import (ACTUATED_INPUTS, GAINS_SCHEMA_VERSION, INPUT_NAMES, N_INPUTS, STATE_NAMES,
+                                  STATE_UNITS, UNUSED_INPUT)
 
 TS = 0.005
 R_W = 0.034
@@ -46,8 +49,8 @@ def plant(ts=TS):
 
 
 def gains_doc(ts=TS, u_max_v=7.6, detector_pole=0.2):
-    """A valid schema-1 gains document (SI units) for plant(ts): the LQR (scipy's DARE) and the
-    firmware bench's recipe for the rest (tipbot_fw.bench.synthetic_gains_doc)."""
+    """A valid gains document (SI units) for plant(ts): the LQR (scipy's DARE) and
+    synthetic_gains_doc's recipe for the rest."""
     A, B = plant(ts)
     act = ACTUATED_INPUTS
     Ba = B[:, act]
@@ -61,6 +64,39 @@ def gains_doc(ts=TS, u_max_v=7.6, detector_pole=0.2):
                                generator='tests/fw_support.py',
                                parameters={'wheel_radius_m': R_W}, parameters_sha256='0' * 64,
                                model_options={'synthetic': True})
+
+
+def synthetic_gains_doc(A, B, K, ts_s, Q=None, R=None, u_max_v=7.6, detector_pole=0.2,
+                        state_units=None, model_variant='physical', generator='synthetic', **extra):
+    """A schema-2 gains document around a model (A, B) and a stabilizing gain K (SI): the detector
+    of Section 6 with G_w = B_a^+ (so L2 = E G_w projects on range(E): (L2 C - I) E = 0),
+    L1 = Abar - detector_pole I (so Abar - L1 C = detector_pole I), K_w = I on the actuated
+    inputs (it cancels an input disturbance), and the Kalman block the host designs for it
+    (hostsim.model.kalman.design_kalman, its noise figures, R_W). extra: further fields."""
+    n = A.shape[0]
+    Ba = B[:, ACTUATED_INPUTS]
+    G = np.zeros((N_INPUTS, n))
+    G[ACTUATED_INPUTS, :] = np.linalg.pinv(Ba)
+    L2 = Ba.dot(G[ACTUATED_INPUTS, :])
+    L1 = (np.eye(n) - L2).dot(A) - detector_pole * np.eye(n)
+    K_w = np.diag([0.0 if i == UNUSED_INPUT else 1.0 for i in range(N_INPUTS)])
+    kalman = design_kalman(A, B, K, K_w, R_W, ts_s).document()
+    doc = {
+        'schema_version': GAINS_SCHEMA_VERSION, 'model_variant': model_variant, 'ts_s': ts_s,
+        'state_names': list(STATE_NAMES), 'state_units': list(STATE_UNITS if state_units is None else state_units),
+        'input_names': list(INPUT_NAMES), 'input_units': ['V'] * N_INPUTS,
+        'actuated_inputs': list(ACTUATED_INPUTS),
+        'A': A.tolist(), 'B': B.tolist(), 'C': np.eye(n).tolist(), 'E': B.tolist(),
+        'K': K.tolist(), 'K_w': K_w.tolist(), 'L1': L1.tolist(), 'L2': L2.tolist(),
+        'G_w': G.tolist(), 'detector_eigenvalues': [detector_pole] * n,
+        'closed_loop_spectral_radius': spectral_radius(A - B.dot(K)),
+        'Q': (np.eye(n) if Q is None else Q).tolist(), 'R': (np.eye(N_INPUTS) if R is None else R).tolist(),
+        'u_max_v': u_max_v, 'parameters': {}, 'parameters_sha256': '', 'model_options': {},
+        'generator': generator,
+        'kalman': json.loads(json.dumps(kalman, default=lambda a: a.tolist())),
+    }
+    doc.update(extra)
+    return doc
 
 
 def to_cm(doc):
@@ -164,6 +200,6 @@ class TickCounter(object):
 
 def moving_readings(polarity=1):
     """A MemoryDevices source whose readings move every tick (so every logged value differs from
-    tick to tick), by steps the hardware can make (tipbot_fw.plausibility: a few counts a tick)."""
+    tick to tick), by steps the hardware can make (tipbot_fw.guard.plausibility: a few counts a tick)."""
     ticks = iter(range(10 ** 6))
     return lambda: (lambda n: ((polarity * 3 * n, -n, n % 12, n % 7), (n // 50, (n % 5) - 2)))(next(ticks))

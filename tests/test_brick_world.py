@@ -1,4 +1,4 @@
-"""The unkind brick in the loop (hostsim.sim.brick_world, hostsim.world.brick_timing): time that
+"""The unkind brick in the loop (hostsim.world.lockstep, hostsim.world.brick_timing): time that
 costs, staggered duties, the firmware's own overrun accounting, the fake EV3's blocking and
 failing mode writes, the battery's sag in the firmware's log, the realistic preset."""
 import dataclasses
@@ -8,14 +8,17 @@ import math
 import numpy as np
 import pytest
 
-from hostsim.sim.fil import SimulationError, run_firmware
+from hostsim.sim.firmware_build import SimulationError
+from hostsim.sim.firmware_run import run_firmware
 from hostsim.sim.scenario import Brick, load_scenario
 from hostsim.studies.montecarlo import gains_document
 from hostsim.world.brick_timing import AccessTimes, BrickClock, TimedIO
 from hostsim.world.fake_ev3 import GYRO_MODE_TRIES, GYRO_MODE_TRY_S, FakeEV3
-from tipbot_fw import feedback, logfile
+from tipbot_fw.io import lights_speaker
+from tipbot_fw.record import logfile
 from tipbot_fw.config import defaults
-from tipbot_fw.ev3io import Ev3Devices, Ev3SetupError
+from tipbot_fw.io.ev3dev import Ev3Devices, Ev3SetupError
+from tipbot_fw import vocabulary
 
 TACHO = (0.0003, 0.00045)
 
@@ -79,14 +82,14 @@ def test_each_read_samples_the_world_at_its_own_moment_and_the_compute_is_charge
 
 
 def test_the_lights_and_the_speaker_cost_brick_time():
-    # tipbot_fw.feedback's writes in the loop's slack go through the timed I/O like the duties:
+    # tipbot_fw.io.lights_speaker's writes in the loop's slack go through the timed I/O like the duties:
     # each costs a sensor-class access, and the fake EV3 shows what was written
     brick = Brick(tacho_access_s=(0.0004, 0.0004), sensor_access_s=(0.0001, 0.0001))
     world = _Recorder()
     with FakeEV3() as fake:
         clock = BrickClock()
         io = TimedIO(fake.io, fake, clock, world, AccessTimes(brick, np.random.default_rng(0)))
-        signals = feedback.BrickSignals(fake.sysfs_root, io=io, now=clock.now)
+        signals = lights_speaker.BrickSignals(fake.sysfs_root, io=io, now=clock.now)
         try:
             t0 = clock.now()
             for target, value in ((1, 255), (3, 255), ("tone", 1047)):
@@ -104,14 +107,14 @@ def test_the_lights_and_the_speaker_cost_brick_time():
 @pytest.mark.slow
 def test_a_timed_run_gives_the_loops_cues_on_the_fake_brick():
     # the let-go melody's rest and 'balancing' come from the loop's side task, each a timed write
-    # (hostsim.sim.fil.SlackCues); the writes land between the loop's ticks
+    # (hostsim.sim.firmware_run.SlackCues); the writes land between the loop's ticks
     run = run_firmware(scenario(duration_s=1.5, tacho_access_s=(0.0002, 0.0002)), gains_doc=kw0())
     assert run.completed
     tones, lights = [], []
     for k, ops in enumerate(run.io_per_iteration):
         for op, rel, data in ops:
             if "sound" in rel:
-                tones.append((k, feedback.INPUT_EVENT.unpack(data)[-1]))
+                tones.append((k, lights_speaker.INPUT_EVENT.unpack(data)[-1]))
             elif "leds/" in rel:
                 lights.append((k, rel.split("/")[1], data))
     # the let-go melody's second and third notes and its end, then 'balancing' after 1 s (200
@@ -160,7 +163,7 @@ def test_the_firmware_sees_real_lateness_and_stops_when_it_falls_behind():
     assert run.header["stop_message"].startswith("the loop is behind")
     assert run.t_s[-1] < 0.5                        # stopped within the overrun window
     flags = run.flags[np.isfinite(run.flags)].astype(int)
-    late = (flags & logfile.FLAG_BITS["overrun"]) != 0
+    late = (flags & vocabulary.FLAG_BITS["overrun"]) != 0
     assert late[-1] and late.mean() > 0.5           # the stopping tick ended late, as most did
     assert run.header["loop"]["skipped_periods"] > 0
     # the firmware's own tick time: its reads, compute and writes

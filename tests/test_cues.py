@@ -1,4 +1,4 @@
-"""What the robot shows its owner (tipbot_fw.cues, tipbot_fw.feedback), read back from the fake
+"""What the robot shows its owner (tipbot_fw.cues, tipbot_fw.io.lights_speaker), read back from the fake
 EV3's files: every state's lights, melody and words, played outside the control tick."""
 import os
 import signal
@@ -7,12 +7,13 @@ import pytest
 
 import fw_support as S
 from hostsim.world.fake_ev3 import FakeEV3
-from tipbot_fw import cli, safety
+from tipbot_fw import cli
+from tipbot_fw.guard import safety
 from tipbot_fw.calibration import sample_counts
-from tipbot_fw.clock import VirtualClock
+from tipbot_fw.io.clock import VirtualClock
 from tipbot_fw.cues import BALANCING_AFTER_S, STOP_WORDS, LoopCues, OwnerCues
-from tipbot_fw.devices import MemoryDevices
-from tipbot_fw.feedback import COLOR_NAMES, LEDS, STATES, BrickSignals, melody_plan, stop_state
+from tipbot_fw.io.devices import MemoryDevices
+from tipbot_fw.io.lights_speaker import COLOR_NAMES, LEDS, STATES, BrickSignals, melody_plan, stop_state
 from tipbot_fw.loop import LoopStats
 from tipbot_fw.session import run_session
 from conftest import PHYSICAL_GAINS

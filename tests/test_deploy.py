@@ -106,8 +106,10 @@ def test_plan_sends_only_changes_chmods_modes_and_removes_what_was_deployed_befo
 
 
 def test_make_run_explains_each_exit_status_in_full():
-    meanings = deploy_tool.exit_meanings()
+    codes = deploy_tool.exit_codes()
+    meanings = codes.MEANINGS
     assert sorted(meanings) == [0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 130, 143]
+    assert sorted(codes.WITH_LOG) == [0, 1, 3, 4, 5, 6, 7, 8, 9, 130, 143]     # every exit of a run but 2
     assert meanings[4].endswith("or (identify) the owner did not confirm that the motor is free to turn")
     assert meanings[3].endswith("(run) a log of the header only, naming them")
 
@@ -178,7 +180,7 @@ def test_deploy_copies_only_changes_and_installs_a_launcher_brickman_can_start(b
         data = f.read()
     assert data.startswith(SHEBANG) and b"\r" not in data
     assert os.stat(launcher).st_mode & stat.S_IXUSR
-    for rel in ("install.sh", "gains.json", "tipbot_fw/core.py", "tipbot_fw/default_config.json"):
+    for rel in ("install.sh", "gains.json", "tipbot_fw/cores/core.py", "tipbot_fw/default_config.json"):
         assert os.path.isfile(os.path.join(brick.install_dir, rel)), rel
     assert os.path.isdir(os.path.join(brick.install_dir, "logs"))
 
@@ -325,7 +327,7 @@ def test_run_on_the_brick_fetch_the_log_and_replay_it_exactly(brick, tmp_path):
     p = brick.make("logs", "LOGS_DIR=%s" % dest)
     assert "logs: 0 new logs from testbrick" in p.stdout and "1 already here" in p.stdout, p.stdout
 
-    from tipbot_fw import logfile
+    from tipbot_fw.record import logfile
     header, rows = logfile.read_log(logs[0])
     assert len(rows) >= 10, header.get("stop_message")     # the control loop ran
     assert "released at" in robot_out, robot_out            # and the simulated robot moved
@@ -358,7 +360,7 @@ def test_run_and_logs_before_any_deploy_say_to_deploy_first(brick, tmp_path):
 def test_the_real_time_fake_robot_holds_the_robot_until_the_firmware_drives_a_motor(tmp_path):
     from hostsim.sim.fake_robot import RealTimeRobot
     from hostsim.sim.scenario import parse_scenario
-    from tipbot_fw.ev3io import Ev3Devices
+    from tipbot_fw.io.ev3dev import Ev3Devices
 
     sc = parse_scenario({"x0_si": [0, 0, 0.05, 0, 0, 0, 0, 0, 0, 0]}, "<test>")
     robot = RealTimeRobot(sc, str(tmp_path / "sys"), hold_s=10.0)

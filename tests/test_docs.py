@@ -74,3 +74,8 @@ def test_a_target_missing_its_argument_says_so_before_building_the_venv(tmp_path
                        stderr=subprocess.PIPE, universal_newlines=True, timeout=60)
     assert p.returncode == 2 and usage in p.stderr, p.stderr
     assert not venv.exists()
+
+
+def test_the_safety_page_shows_the_exit_codes_table():
+    from tipbot_fw.guard.exit_codes import markdown_table
+    assert markdown_table() + "\n" in (ROOT / "docs" / "safety.md").read_text(encoding="utf-8")

@@ -10,7 +10,7 @@ import pytest
 
 from conftest import PHYSICAL_GAINS, REPO
 from hostsim.logs.drive import SPEED_STEP_MPS, YAW_STEP_DPS, apply_key
-from tipbot_fw.logfile import read_log
+from tipbot_fw.record.logfile import read_log
 
 
 def test_keys_change_speed_and_turn_by_their_steps():

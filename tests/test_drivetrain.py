@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from hostsim.model.equations import RobotModel
-from hostsim.sim.fil import friction_torques_nm
+from hostsim.sim.firmware_build import friction_torques_nm
 from hostsim.world.drivetrain import DrivetrainPlant
 from hostsim.world.plant import Plant, link_push_impulse
 

@@ -32,13 +32,15 @@ def test_brick_files_are_lf_and_executable():
 
 def make_install_dir(tmp_path, gains=True):
     d = tmp_path / "tipbot"
-    (d / "tipbot_fw").mkdir(parents=True)
+    (d / "tipbot_fw" / "guard").mkdir(parents=True)
     shutil.copy2(os.path.join(EV3, "tipbot"), str(d / "tipbot"))
     shutil.copy2(os.path.join(EV3, "install.sh"), str(d / "install.sh"))
     shutil.copy2(os.path.join(EV3, "tipbot.service"), str(d / "tipbot.service"))
     # the real supervisor (the launcher becomes it) and a stand-in firmware that reports how it
     # was started
-    for name in ("supervisor.py", "heartbeat.py", "config.py", "fields.py", "safety.py", "default_config.json"):
+    for name in ("supervisor.py", "vocabulary.py", "guard/__init__.py", "guard/heartbeat.py", "config.py", "fields.py",
+                 "guard/safety.py", "guard/exit_codes.py",
+                 "guard/realtime.py", "default_config.json"):
         shutil.copy2(os.path.join(REPO, "tipbot_fw", name), str(d / "tipbot_fw" / name))
     (d / "tipbot_fw" / "__init__.py").write_text("")
     (d / "tipbot_fw" / "__main__.py").write_text(textwrap.dedent("""\
@@ -189,7 +191,7 @@ def test_a_launcher_start_after_install_rtprio_runs_sched_fifo_and_one_without_s
     """install.sh --rtprio writes the pam_limits line; a session that has it gets SCHED_FIFO from
     the launcher (start line and log header); one without it gets a one-line refusal and runs."""
     import getpass
-    from tipbot_fw.logfile import read_log
+    from tipbot_fw.record.logfile import read_log
     d = make_install_dir(tmp_path)
     limits_dir = tmp_path / "limits.d"
     limits_dir.mkdir()

@@ -1,4 +1,4 @@
-"""tipbot_fw.ev3io.Ev3Devices against hostsim.world.fake_ev3: start-up checks and set-up, the per-tick
+"""tipbot_fw.io.ev3dev.Ev3Devices against hostsim.world.fake_ev3: start-up checks and set-up, the per-tick
 I/O budget (5 reads, <= 4 writes), what the fake sees, failures, and a cross-process run."""
 import ast
 import copy
@@ -13,11 +13,11 @@ import pytest
 
 from hostsim.world.fake_ev3 import FakeEV3
 from tipbot_fw import config as fw_config
-from tipbot_fw.ev3io import (Ev3Devices, Ev3ReadError, Ev3SetupError, Ev3WriteError)
+from tipbot_fw.io.ev3dev import (Ev3Devices, Ev3ReadError, Ev3SetupError, Ev3WriteError)
 from conftest import REPO
 
 PORTS = ('outA', 'outB', 'outC', 'outD')
-EV3IO_PATH = os.path.join(REPO, 'tipbot_fw', 'ev3io.py')
+EV3IO_PATH = os.path.join(REPO, 'tipbot_fw', 'io', 'ev3dev.py')
 
 
 @pytest.fixture

@@ -11,7 +11,8 @@ import pytest
 
 from hostsim.model import bodies
 from hostsim.model.params import load_params
-from tipbot_fw import bodyfit, logfile
+from tipbot_fw import bodyfit
+from tipbot_fw.record import logfile
 from conftest import REPO
 
 

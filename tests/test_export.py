@@ -8,10 +8,11 @@ import numpy as np
 import pytest
 
 from hostsim.logs import export
-from tipbot_fw import logfile
+from tipbot_fw.record import logfile
+from tipbot_fw.cores.detector_rows import DetectorRows
 
 
-def a_log(path, columns=logfile.COLUMNS, kind=None, nrows=30, seed=4):
+def a_log(path, columns=DetectorRows.columns, kind=None, nrows=30, seed=4):
     rng = np.random.RandomState(seed)
     rows = rng.normal(size=(nrows, len(columns))) * 10.0 ** rng.randint(-6, 6, size=(1, len(columns)))
     rows[:, 0] = np.arange(nrows) * 0.005
@@ -67,10 +68,10 @@ def test_a_log_that_cannot_be_read_gets_one_line(tmp_path, capsys, make, message
 
 def test_a_kalman_log_exports_the_physical_columns_the_replay_rebuilds(tmp_path, capsys):
     # the rows hold raw readings and the filter's integer state: the CSV adds x^, w^, u, u_cmd
-    # and the bias as tipbot_fw.replay.signals() makes them, with the gains found by their hash
+    # and the bias as tipbot_fw.record.replay.signals() makes them, with the gains found by their hash
     import fw_support as S
     from tipbot_fw.gains import load_gains
-    from tipbot_fw.replay import signals
+    from tipbot_fw.record.replay import signals
     from tipbot_fw.session import run_session
     (tmp_path / 'robot').mkdir()
     gains_path = S.write_json(tmp_path / 'robot' / 'gains-x.json', S.gains_doc())
@@ -86,9 +87,9 @@ def test_a_kalman_log_exports_the_physical_columns_the_replay_rebuilds(tmp_path,
     sig = signals(header, rows, gains)
     assert names[:len(header['columns'])] == [export.column_name(c['name'], c['unit']) for c in header['columns']]
     np.testing.assert_array_equal(values[:, :len(header['columns'])], rows)
-    for name, expected in (('xt_th1_rad', sig['x_hat'][:, 2]), ('xt_d_r_m', sig['x_hat'][:, 0]),
-                           ('w_r_V', sig['w_hat'][:, 0]), ('u_th3_V', sig['u'][:, 4]),
-                           ('u_cmd_l_V', sig['u_cmd'][:, 1])):
+    for name, expected in (('xt_th1_rad', sig.x_hat[:, 2]), ('xt_d_r_m', sig.x_hat[:, 0]),
+                           ('w_r_V', sig.w_hat[:, 0]), ('u_th3_V', sig.u[:, 4]),
+                           ('u_cmd_l_V', sig.u_cmd[:, 1])):
         np.testing.assert_array_equal(values[:, names.index(name)], expected, err_msg=name)
     assert np.ptp(values[:, names.index('xt_th1_rad')]) > 1e-3     # not vacuous: the estimate moved
     # link 1 has no motor: no input, disturbance or command columns that would always read 0

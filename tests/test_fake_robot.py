@@ -12,8 +12,8 @@ import pytest
 
 from hostsim.sim.fake_robot import RealTimeRobot
 from hostsim.sim.scenario import Push, load_scenario
-from tipbot_fw.clock import VirtualClock
-from tipbot_fw.ev3io import Ev3Devices
+from tipbot_fw.io.clock import VirtualClock
+from tipbot_fw.io.ev3dev import Ev3Devices
 from tipbot_fw.gains import load_gains
 from tipbot_fw.session import run_session
 from conftest import PHYSICAL_GAINS

@@ -16,7 +16,7 @@ from conftest import PARAMS_FILE, PHYSICAL_GAINS, REPO
 from hostsim.errors import ParameterError
 from hostsim.model.params import load_params
 from hostsim.sim.scenario import BRICK_BOUNDS, ScenarioError, load_scenario
-from tipbot_fw import logfile
+from tipbot_fw.record import logfile
 from tipbot_fw.config import ConfigError, load_config
 from tipbot_fw.gains import GainsError, load_gains
 
@@ -224,7 +224,7 @@ def test_what_a_scenario_tells_the_firmware_is_checked_when_read(tmp_path, data)
     # a scenario's firmware_config, fuzzed where a config is: refused naming firmware_config.<field>
     # (or, for what JSON cannot hold, the place in the file), or what the simulation builds from it
     # is a configuration the firmware accepts
-    from hostsim.sim.fil import firmware_config
+    from hostsim.sim.firmware_build import firmware_config
     path = tmp_path / 'b.json'
     path.write_text('{"modes": ["firmware"], "firmware_config": %s}' % mutate(CONFIG, data))
     try:

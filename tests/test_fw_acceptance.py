@@ -9,7 +9,7 @@ and the state settles near zero; each control tick does at most 5 sysfs reads an
 import numpy as np
 import pytest
 
-from hostsim.sim.fil import run_firmware
+from hostsim.sim.firmware_run import run_firmware
 from hostsim.sim.scenario import parse_scenario
 
 TICK_READS = ("position", "bin_data")

@@ -10,7 +10,8 @@ import pytest
 import fw_support as S
 from hostsim.world.fake_ev3 import FakeEV3
 from tipbot_fw import cli
-from tipbot_fw.logfile import col, read_log
+from tipbot_fw.cores.detector_rows import DetectorRows
+from tipbot_fw.record.logfile import read_log
 from conftest import PHYSICAL_GAINS, REPO
 
 
@@ -66,7 +67,7 @@ def test_a_run_refused_for_missing_devices_writes_a_log_naming_them(tmp_path, ca
 
 @pytest.mark.parametrize('checkout, where', [(True, 'logs'), (False, '.')])
 def test_logs_go_to_logs_in_a_checkout_or_install_directory(tmp_path, monkeypatch, checkout, where):
-    from tipbot_fw import logfile
+    from tipbot_fw.record import logfile
     if checkout:
         (tmp_path / 'tipbot_fw').mkdir()
     monkeypatch.chdir(tmp_path)
@@ -106,7 +107,7 @@ def test_run_on_the_fake_ev3(fake, tmp_path, quick_config, capsys):
     assert header['stop_reason'] == 'completed' and len(rows) == 20
     assert header['encoder_offsets'] == [100, -20, 30, 40]
     assert header['counts_per_rot'] == [360, 360, 360, 360]
-    assert np.all(rows[:, col('battery_v')] == pytest.approx(8.2))
+    assert np.all(rows[:, DetectorRows.col('battery_v')] == pytest.approx(8.2))
     states = fake.poll()
     for port in ('outA', 'outB', 'outC', 'outD'):
         assert fake.motor_duty(port) == 0 and not fake.motor_running(port), states[port]
@@ -134,7 +135,7 @@ def test_check_and_calibrate_on_the_fake_ev3(fake, quick_config, capsys):
 
 def test_bench_imports_only_the_firmware_and_numpy():
     code = ("import sys; from tipbot_fw import bench; rc = bench.main(['--ticks', '300']); "
-            "bad = [m for m in ('ev3dev2', 'scipy', 'hostsim', 'tipbot_fw.ev3io') if m in sys.modules]; "
+            "bad = [m for m in ('ev3dev2', 'scipy', 'hostsim', 'tipbot_fw.io.ev3dev') if m in sys.modules]; "
             "print(rc, bad)")
     out = subprocess.run([sys.executable, '-c', code], cwd=REPO, stdout=subprocess.PIPE,
                          universal_newlines=True, check=True).stdout
@@ -183,7 +184,7 @@ def test_an_import_error_without_a_signal_is_not_called_an_interrupt(tmp_path):
 
 def test_on_robot_bench_runs_against_any_devices():
     from tipbot_fw.bench import brick_bench
-    from tipbot_fw.devices import MemoryDevices
+    from tipbot_fw.io.devices import MemoryDevices
     dev = MemoryDevices()
     lines = []
     brick_bench(dev, S.load(), S.fw_config(), 40, say=lines.append)
@@ -205,13 +206,13 @@ def test_a_signal_in_the_start_window_leaves_a_log_that_reads(fake, tmp_path, qu
                                                               monkeypatch, where):
     """SIGTERM before the session's guard takes over (the adversary's 'right after running ...')
     ends with a readable log that says why, and the motors stopped; never a half-made file."""
-    from tipbot_fw import logcontainer
+    from tipbot_fw.record import container
     if where == 'while the log file is made':
-        real = logcontainer.LogWriter._write
+        real = container.LogWriter._write
         def write(self, data, at=None):
             _sigterm_self()
             return real(self, data, at)
-        monkeypatch.setattr(logcontainer.LogWriter, '_write', write)
+        monkeypatch.setattr(container.LogWriter, '_write', write)
     elif where == 'right after the log is opened':
         real_open = cli.open_log
         monkeypatch.setattr(cli, 'open_log', lambda *a: (real_open(*a), _sigterm_self())[0])

@@ -1,10 +1,11 @@
-"""tipbot_fw.detector: the folded one-matrix step equals the equations; the detector converges."""
+"""tipbot_fw.cores.detector: the folded one-matrix step equals the equations; the detector converges."""
 
 import numpy as np
 
 import fw_support as S
-from tipbot_fw.detector import N_FIXED, fold, fold_full, reference_step
-from tipbot_fw.gains import ACTUATED_INPUTS, load_gains
+from tipbot_fw.cores.detector import N_FIXED, fold, fold_full, reference_step
+from tipbot_fw.gains import load_gains
+from tipbot_fw.vocabulary import ACTUATED_INPUTS
 from conftest import PHYSICAL_GAINS, gains_path
 
 ACT = ACTUATED_INPUTS

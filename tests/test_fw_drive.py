@@ -10,14 +10,16 @@ import pytest
 import fw_support as S
 from conftest import PAPER_GAINS, PHYSICAL_GAINS
 from hostsim.world.fake_ev3 import FakeEV3
-from tipbot_fw import cli, kalman, pathfollow
+from tipbot_fw import cli
+from tipbot_fw.cores import kalman
+from tipbot_fw.drive import pathfollow
 from tipbot_fw.config import load_config
-from tipbot_fw.course import CourseError, parse_course, read_course
-from tipbot_fw.drive import course_plan, transition_s
+from tipbot_fw.drive.course import CourseError, parse_course, read_course
+from tipbot_fw.drive.plan import course_plan, transition_s
 from tipbot_fw.gains import load_gains
-from tipbot_fw.kalman import KalmanCore, N_U
-from tipbot_fw.logfile import read_log
-from tipbot_fw.pathfollow import follow_course
+from tipbot_fw.cores.kalman import KalmanCore, N_U
+from tipbot_fw.record.logfile import read_log
+from tipbot_fw.drive.pathfollow import follow_course
 
 LIMITS = {'speed_mps': 0.25, 'accel_mps2': 0.6, 'jerk_mps3': 3.0, 'yaw_rate_dps': 100.0,
           'yaw_accel_dps2': 300.0, 'yaw_jerk_dps3': 1500.0}
@@ -77,7 +79,7 @@ def test_a_stall_moves_the_plan_on_by_its_periods(physical):
         step_followed(b, followers[1], buf)
     b.skip(59)
     step_followed(b, followers[1], buf, fill_first=True)
-    # the 12 rows a skip keeps come first (tipbot_fw.kalman.LIVE_KEEP_ROWS), then the clock's
+    # the 12 rows a skip keeps come first (tipbot_fw.cores.kalman.LIVE_KEEP_ROWS), then the clock's
     for _ in range(kalman.LIVE_KEEP_ROWS):
         step_followed(b, followers[1], buf)
     for _ in range(kalman.LIVE_KEEP_ROWS):
@@ -212,7 +214,7 @@ def fake(tmp_path):
 
 
 def test_run_with_a_course_logs_the_reference_and_replays_exactly(fake, tmp_path, capsys):
-    from tipbot_fw.replay import replay
+    from tipbot_fw.record.replay import replay
     config = S.write_json(tmp_path / 'quick.json',
                           {'realtime_priority': 0, 'gyro_calibration': {'settle_s': 0.05, 'duration_s': 0.05}})
     course = write(tmp_path, [{'speed_mps': 0.2, 'yaw_rate_dps': 10, 'duration_s': 0.7}])
@@ -238,7 +240,7 @@ def test_the_paper_gains_drive_too(capsys, tmp_path):
 def test_the_replayed_law_output_includes_the_reference(fake, tmp_path, capsys):
     # replay.signals' u_cmd is the law's output before rounding: with a course, the logged duties
     # are those of -K_a x^ + K_a d_ref + G r (to the duty's rounding), not of -K_a x^ alone
-    from tipbot_fw.replay import signals
+    from tipbot_fw.record.replay import signals
     config = S.write_json(tmp_path / 'quick.json',
                           {'realtime_priority': 0, 'gyro_calibration': {'settle_s': 0.05, 'duration_s': 0.05}})
     course = write(tmp_path, [{'speed_mps': 0.2, 'yaw_rate_dps': 0, 'duration_s': 1.0}])
@@ -247,9 +249,9 @@ def test_the_replayed_law_output_includes_the_reference(fake, tmp_path, capsys):
                      '--log', log, '--sysfs-root', fake.sysfs_root, '--course', course]) == 0
     header, rows = read_log(log)
     sig = signals(header, rows, load_gains(PHYSICAL_GAINS))
-    applied, law = sig['u'][1:, [0, 1, 3, 4]], sig['u_cmd'][1:, [0, 1, 3, 4]]
+    applied, law = sig.u[1:, [0, 1, 3, 4]], sig.u_cmd[1:, [0, 1, 3, 4]]
     duty_v = 8.2 / 100.0
     inside = np.abs(law) < 7.0          # not saturated
     assert inside.sum() > 100
     assert np.abs(applied[inside] - law[inside]).max() <= duty_v * 0.5 + 1e-6
-    assert np.abs(sig['reference'][:, 2]).max() > 0.1
+    assert np.abs(sig.reference[:, 2]).max() > 0.1

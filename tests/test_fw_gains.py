@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 import fw_support as S
-from tipbot_fw import logfile
 from tipbot_fw.gains import GainsError, gains_from_dict, load_gains
 from conftest import PAPER_GAINS, PHYSICAL_GAINS
+from tipbot_fw import vocabulary
 
 
 
@@ -82,10 +82,10 @@ def test_unknown_schema_version(tmp_path):
 
 
 def test_unknown_units(tmp_path):
-    units = list(logfile.STATE_UNITS)
+    units = list(vocabulary.STATE_UNITS)
     units[0] = 'mm'
     refused(tmp_path, doc_with(state_units=units), r"field state_units\[0\] is 'mm', expected one of cm, m")
-    units = list(logfile.STATE_UNITS)
+    units = list(vocabulary.STATE_UNITS)
     units[2] = 'deg'
     refused(tmp_path, doc_with(state_units=units), r"field state_units\[2\] is 'deg', expected one of rad")
     refused(tmp_path, doc_with(input_units=['V', 'V', 'V', 'mV', 'V']), r"field input_units\[3\] is 'mV'")

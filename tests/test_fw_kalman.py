@@ -1,4 +1,4 @@
-"""tipbot_fw.kalman: the fixed-point core equals the readable filter and law; the filter tells the
+"""tipbot_fw.cores.kalman: the fixed-point core equals the readable filter and law; the filter tells the
 gyro bias from the lean and follows a drifting bias; no sum of the product can overflow."""
 import copy
 import math
@@ -8,17 +8,22 @@ import pytest
 
 import fw_support as S
 from conftest import PAPER_GAINS, PHYSICAL_GAINS
-from tipbot_fw import fixedpoint as fx
-from tipbot_fw import kalman, logfile, plausibility
-from tipbot_fw import replay as fw_replay
-from tipbot_fw.clock import VirtualClock
+from tipbot_fw.cores import fixedpoint as fx
+from tipbot_fw.cores import kalman
+from tipbot_fw.record import logfile
+from tipbot_fw.guard import plausibility
+from tipbot_fw.record import replay as fw_replay
+from tipbot_fw.io.clock import VirtualClock
 from tipbot_fw.cues import OwnerCues
 from tipbot_fw.session import run_session
-from tipbot_fw.devices import MemoryDevices
-from tipbot_fw.gains import ACTUATED_INPUTS, load_gains
-from tipbot_fw.kalman import KalmanCore, fold, reference_step
+from tipbot_fw.io.devices import MemoryDevices
+from tipbot_fw.gains import load_gains
+from tipbot_fw.vocabulary import ACTUATED_INPUTS
+from tipbot_fw.cores.kalman import KalmanCore
+from tipbot_fw.cores.kalman_design import fold, reference_step
 from tipbot_fw.loop import ControlLoop
-from tipbot_fw.safety import DeviceFailure
+from tipbot_fw.guard.safety import DeviceFailure
+from tipbot_fw import vocabulary
 
 DEG = math.pi / 180
 ACT = ACTUATED_INPUTS
@@ -330,7 +335,7 @@ def test_the_integrators_stay_within_their_authority_when_the_wheels_are_held(tm
     kal = gains.kalman
     names = [c['name'] for c in head['columns']]
     z = rows[:, names.index('xi_z_r')]
-    wound = (rows[:, names.index('flags')].astype(np.int64) & logfile.WOUND_DOWN) != 0
+    wound = (rows[:, names.index('flags')].astype(np.int64) & vocabulary.WOUND_DOWN) != 0
     limit = kal.integral_limit_m_s
     assert wound.sum() >= 3                                  # wound down, once a second
     assert np.all(np.abs(z[np.nonzero(wound)[0] + 1]) <= limit + 1.01 * hold_m * gains.ts_s)   # from there on

@@ -1,4 +1,4 @@
-"""tipbot_fw.logfile and tipbot_fw.replay: the log round-trips, damage is detected, runs replay."""
+"""tipbot_fw.record.logfile and tipbot_fw.record.replay: the log round-trips, damage is detected, runs replay."""
 import errno
 import json
 import os
@@ -9,37 +9,40 @@ import numpy as np
 import pytest
 
 import fw_support as S
-from tipbot_fw import logfile
-from tipbot_fw.logfile import DetectorRows, LogFormatError, LogWriteError, LogWriter, col, read_log, write_log
-from tipbot_fw.replay import replay
+from tipbot_fw.record import logfile
+from tipbot_fw.record.logfile import LogFormatError, LogWriteError, LogWriter, read_log, write_log
+from tipbot_fw.record.replay import replay
 from tipbot_fw.session import run_session
+from tipbot_fw.cores.detector_rows import DetectorRows
+
+col = DetectorRows.col
 
 
 def some_rows(n=37, seed=6):
-    return np.random.RandomState(seed).normal(size=(n, logfile.N_COLUMNS))
+    return np.random.RandomState(seed).normal(size=(n, len(DetectorRows.columns)))
 
 
 def test_round_trip(tmp_path):
     path = str(tmp_path / 'a.log')
     rows = some_rows()
-    write_log(path, {'stop_reason': 'completed', 'nested': {'x': [1, 2.5]}}, rows)
+    write_log(path, {'stop_reason': 'completed', 'nested': {'x': [1, 2.5]}}, rows, DetectorRows.columns)
     header, back = read_log(path)
     np.testing.assert_array_equal(back, rows)
     assert header['nested'] == {'x': [1, 2.5]} and header['format_version'] == 2 and 'incomplete' not in header
-    assert [c['name'] for c in header['columns']] == logfile.COLUMN_NAMES
+    assert [c['name'] for c in header['columns']] == DetectorRows.column_names
     assert not (tmp_path / 'a.log.tmp').exists()
 
 
 def test_empty_log_round_trips(tmp_path):
     path = str(tmp_path / 'e.log')
-    write_log(path, {}, np.zeros((0, logfile.N_COLUMNS)))
-    assert read_log(path)[1].shape == (0, logfile.N_COLUMNS)
+    write_log(path, {}, np.zeros((0, len(DetectorRows.columns))), DetectorRows.columns)
+    assert read_log(path)[1].shape == (0, len(DetectorRows.columns))
 
 
 @pytest.fixture
 def log_bytes(tmp_path):
     path = str(tmp_path / 'a.log')
-    write_log(path, {'k': 'v'}, some_rows())
+    write_log(path, {'k': 'v'}, some_rows(), DetectorRows.columns)
     with open(path, 'rb') as f:
         return path, f.read()
 
@@ -65,7 +68,7 @@ def chunked_log(tmp_path):
     """A log whose 37 rows are in chunks of 10, as a run writes them."""
     path = str(tmp_path / 'c.log')
     rows = some_rows()
-    w = LogWriter(path, logfile.COLUMNS, reserve_rows=1000)
+    w = LogWriter(path, DetectorRows.columns, reserve_rows=1000)
     w.header({'k': 'v'})
     for i in range(0, len(rows), 10):
         w.rows(rows[i:i + 10])
@@ -126,10 +129,10 @@ def test_a_flipped_bit_in_a_record_header_is_refused(chunked_log):
 
 def test_a_version_1_log_still_reads(tmp_path):
     # version 1: counts, header, body and one CRC over them (docs/log-format.md)
-    header = {'columns': logfile.columns_header(), 'k': 1}
+    header = {'columns': logfile.columns_header(DetectorRows.columns), 'k': 1}
     text = json.dumps(header).encode()
     rows = some_rows(3)
-    counts = struct.pack('<IIIQ', 1, len(text), logfile.N_COLUMNS, 3)
+    counts = struct.pack('<IIIQ', 1, len(text), len(DetectorRows.columns), 3)
     body = rows.astype('<f8').tobytes()
     crc = zlib.crc32(counts + text + body) & 0xffffffff
     path = str(tmp_path / 'v1.log')
@@ -140,7 +143,7 @@ def test_a_version_1_log_still_reads(tmp_path):
 
 def test_a_full_disk_keeps_what_was_written(tmp_path, monkeypatch):
     path = str(tmp_path / 'full.log')
-    w = LogWriter(path, logfile.COLUMNS)
+    w = LogWriter(path, DetectorRows.columns)
     w.header({})
     rows = some_rows(30)
     w.rows(rows[:10])
@@ -159,7 +162,7 @@ def test_a_full_disk_keeps_what_was_written(tmp_path, monkeypatch):
 
 def test_no_room_for_the_log_is_found_before_anything_runs(tmp_path):
     with pytest.raises(LogWriteError, match='cannot write the log .*/nonexistent/x.log'):
-        LogWriter(str(tmp_path / 'nonexistent' / 'x.log'), logfile.COLUMNS)
+        LogWriter(str(tmp_path / 'nonexistent' / 'x.log'), DetectorRows.columns)
 
 
 def test_not_a_log_and_trailing_garbage(chunked_log):
@@ -188,10 +191,10 @@ def test_log_written_block_by_block_from_the_ring(tmp_path):
     log = logfile.LogBuffer(7, DetectorRows((1, -1, 1, 1)))
     rng = np.random.RandomState(8)
     for k in range(17):
-        log.mem[k % 7] = rng.normal(size=logfile.MEM_COLUMNS)
+        log.mem[k % 7] = rng.normal(size=len(DetectorRows.mem_names))
     log.count = 17
     path = str(tmp_path / 'ring.log')
-    write_log(path, {'first_tick': log.first_tick()}, log.file_blocks(size=2), log.kept())
+    write_log(path, {'first_tick': log.first_tick()}, log.file_blocks(size=2), DetectorRows.columns)
     header, rows = read_log(path)
     np.testing.assert_array_equal(rows, log.ordered()[1])
     assert header['first_tick'] == 10 and len(rows) == 7

@@ -1,4 +1,4 @@
-"""tipbot_fw.logcontainer's bounded log: a head of the first rows, a ring of the last chunks, and
+"""tipbot_fw.record.container's bounded log: a head of the first rows, a ring of the last chunks, and
 what a crash or a power cut in the middle of overwriting the ring leaves (fault injection on
 the file's bytes)."""
 import json
@@ -6,9 +6,9 @@ import json
 import numpy as np
 import pytest
 
-from tipbot_fw import logcontainer, logfile
-from tipbot_fw.logcontainer import LogFormatError, LogWriter, read_log
-from tipbot_fw.logfile import segments
+from tipbot_fw.record import container, logfile
+from tipbot_fw.record.container import LogFormatError, LogWriter, read_log
+from tipbot_fw.record.logfile import segments
 
 COLUMNS = [('tick', ''), ('a', 'm'), ('b', 'V')]
 HEAD, SLOTS, CHUNK = 100, 4, 50
@@ -71,7 +71,7 @@ def test_a_run_that_fits_reads_whole_and_a_ring_that_never_wrapped_has_no_gap(tm
     np.testing.assert_array_equal(rows, rows_of(0, 260))
     assert header['segments'] == [[0, 260]] and header['not_kept'] == []
     # rewritten whole (a tool), it is a log of rows in order: no ring
-    logcontainer.write_log(str(tmp_path / 'again.log'), header, rows, COLUMNS)
+    container.write_log(str(tmp_path / 'again.log'), header, rows, COLUMNS)
     again, back = read_log(str(tmp_path / 'again.log'))
     np.testing.assert_array_equal(back, rows)
     assert 'ring' not in again
@@ -159,7 +159,7 @@ def test_a_ring_log_cut_anywhere_reads_with_what_is_intact(tmp_path, end):
 def test_a_header_with_a_ring_that_does_not_fit_its_rows_is_refused_in_one_line(tmp_path, ring):
     path = str(tmp_path / 'bad.log')
     w = LogWriter(path, COLUMNS)
-    w._record(logcontainer.HEAD, json.dumps({'columns': w.columns, 'ring': ring}).encode())
+    w._record(container.HEAD, json.dumps({'columns': w.columns, 'ring': ring}).encode())
     w.close({})
     with pytest.raises(LogFormatError, match='header field ring must') as e:
         read_log(path)

@@ -6,15 +6,17 @@ import numpy as np
 import pytest
 
 import fw_support as S
-from tipbot_fw import heartbeat, logfile, safety
-from tipbot_fw.clock import VirtualClock
-from tipbot_fw.core import make_core
-from tipbot_fw.devices import MemoryDevices
+from tipbot_fw.guard import heartbeat, safety
+from tipbot_fw.record import logfile
+from tipbot_fw.io.clock import VirtualClock
+from tipbot_fw.cores.core import make_core
+from tipbot_fw.io.devices import MemoryDevices
 from tipbot_fw.loop import SIDE_WAIT_S, ControlLoop
-from tipbot_fw.safety import OverrunLimit, Terminated
+from tipbot_fw.guard.safety import OverrunLimit, Terminated
 from tipbot_fw.session import run_session
+from tipbot_fw import vocabulary
 
-OVERRUN = logfile.FLAG_BITS['overrun']
+OVERRUN = vocabulary.FLAG_BITS['overrun']
 
 TS = S.TS
 
@@ -212,8 +214,8 @@ def test_one_stall_is_ridden_out_and_the_core_predicts_through_the_periods_it_mi
     assert stats.overruns == 1 and stats.skipped_periods == 11 and stats.max_lost_s < 1e-9
     assert skipped == [11]
     flags = log.mem[:log.count, log.rows.flags_index].astype(int)
-    assert flags[29] & OVERRUN and flags[29] >> logfile.SKIP_SHIFT == 11
-    assert not (flags[:29] >> logfile.SKIP_SHIFT).any() and not (flags[30:] >> logfile.SKIP_SHIFT).any()
+    assert flags[29] & OVERRUN and flags[29] >> vocabulary.SKIP_SHIFT == 11
+    assert not (flags[:29] >> vocabulary.SKIP_SHIFT).any() and not (flags[30:] >> vocabulary.SKIP_SHIFT).any()
 
 
 def test_a_stall_longer_than_the_longest_ridden_out_stops_the_loop_and_is_counted():
@@ -340,7 +342,7 @@ def test_the_detector_core_balances_the_simulated_robot_too():
 def test_a_soft_rtprio_limit_below_the_hard_one_is_raised_before_asking(monkeypatch):
     """ulimit -Sr 0 under a hard limit of 60 (a pam_limits 'hard' line): the request raises the
     soft limit itself, as any process may, instead of being refused."""
-    from tipbot_fw import realtime
+    from tipbot_fw.guard import realtime
     limits = {'now': (0, 60)}
     monkeypatch.setattr(realtime.resource, 'getrlimit', lambda what: limits['now'])
     monkeypatch.setattr(realtime.resource, 'setrlimit', lambda what, v: limits.update(now=tuple(v)))

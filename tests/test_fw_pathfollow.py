@@ -1,4 +1,4 @@
-"""Following a course in the plane (tipbot_fw.pathfollow): the pose arithmetic, the offsets a lag
+"""Following a course in the plane (tipbot_fw.drive.pathfollow): the pose arithmetic, the offsets a lag
 at a turn in place makes, rows that are the course's own when the robot follows exactly, and the
 square driven on the realistic brick."""
 import math
@@ -7,9 +7,9 @@ import pytest
 
 import fw_support as S
 from conftest import PHYSICAL_GAINS
-from tipbot_fw import pathfollow as pf
+from tipbot_fw.drive import pathfollow as pf
 from tipbot_fw.gains import load_gains
-from tipbot_fw.kalman import REF, KalmanCore
+from tipbot_fw.cores.kalman import REF, KalmanCore
 
 
 @pytest.fixture(scope='module')
@@ -76,7 +76,7 @@ def test_the_square_on_the_realistic_brick_ends_where_it_started():
     # issue 21's square, seed 0 of scenarios/drive_square.json: within 5 cm and 5 degrees of its
     # start (the wheels' own tracking alone ended 10 cm away: docs/course-format.md)
     from hostsim.sim import metrics
-    from hostsim.sim.fil import run_firmware
+    from hostsim.sim.firmware_run import run_firmware
     from hostsim.sim.scenario import load_scenario
     sc = load_scenario("drive_square")
     run = run_firmware(sc, sysfs=True)

@@ -12,8 +12,8 @@ import fw_support as S
 from conftest import PHYSICAL_GAINS
 from hostsim.world.fake_ev3 import FakeEV3
 from tipbot_fw import cli
-from tipbot_fw.logfile import read_log
-from tipbot_fw.remote import COMMAND, MAGIC, TIMEOUT_S, LivePlan, Receiver, allowed_host
+from tipbot_fw.record.logfile import read_log
+from tipbot_fw.drive.remote import COMMAND, MAGIC, TIMEOUT_S, LivePlan, Receiver, allowed_host
 
 LIMITS = {'speed_mps': 0.25, 'accel_mps2': 0.6, 'jerk_mps3': 3.0, 'yaw_rate_dps': 100.0,
           'yaw_accel_dps2': 300.0, 'yaw_jerk_dps3': 1500.0}
@@ -140,7 +140,7 @@ def test_remote_and_course_together_are_refused(tmp_path, capsys):
 def test_a_stall_skips_a_live_plan_but_leaves_the_ticks_rows():
     from tipbot_fw.config import load_config
     from tipbot_fw.gains import load_gains
-    from tipbot_fw.kalman import LIVE_KEEP_ROWS, KalmanCore
+    from tipbot_fw.cores.kalman import LIVE_KEEP_ROWS, KalmanCore
     gains = load_gains(PHYSICAL_GAINS)
     core = KalmanCore(gains, load_config())
     core.set_gyro_bias(0.0)

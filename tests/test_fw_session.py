@@ -7,13 +7,16 @@ import numpy as np
 import pytest
 
 import fw_support as S
-from tipbot_fw import logfile
 from tipbot_fw.calibration import sample_counts
-from tipbot_fw.clock import VirtualClock
+from tipbot_fw.io.clock import VirtualClock
 from tipbot_fw.cues import OwnerCues
-from tipbot_fw.devices import MemoryDevices
-from tipbot_fw.logfile import FLAG_BITS, col, read_log
+from tipbot_fw.io.devices import MemoryDevices
+from tipbot_fw.record.logfile import read_log
 from tipbot_fw.session import run_session
+from tipbot_fw.cores.detector_rows import DetectorRows
+from tipbot_fw.vocabulary import FLAG_BITS
+
+col = DetectorRows.col
 
 FALL, JOINT_LIMIT, OVERRUN = FLAG_BITS['fall'], FLAG_BITS['joint_limit'], FLAG_BITS['overrun']
 
@@ -80,7 +83,7 @@ def test_the_detector_core_stops_at_the_limits_too(tmp_path):
     clock = VirtualClock(on_sleep=TickCounter(dev, lambda n: setattr(dev, 'enc', (0, 0, 0, 5 * n))))
     code, header, path, _ = session(tmp_path, dev, clock, config=S.fw_config(estimator='detector'))
     h, rows = assert_stopped_and_logged(dev, path, 'joint_limit', 6, header)
-    assert h['estimator'] == 'detector' and [c['name'] for c in h['columns']] == logfile.COLUMN_NAMES
+    assert h['estimator'] == 'detector' and [c['name'] for c in h['columns']] == DetectorRows.column_names
     assert abs(rows[-1, col('y_th3')]) > 1.2 and int(rows[-1, col('flags')]) & JOINT_LIMIT
 
 

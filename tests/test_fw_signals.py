@@ -1,12 +1,12 @@
-"""tipbot_fw.signals and tipbot_fw.controller: raw readings -> y, and u -> duties."""
+"""tipbot_fw.cores.signal_chain and tipbot_fw.cores.saturation: raw readings -> y, and u -> duties."""
 import math
 
 import numpy as np
 import pytest
 
 import fw_support as S
-from tipbot_fw.controller import battery_constants, to_duties
-from tipbot_fw.signals import SignalChain
+from tipbot_fw.cores.saturation import battery_constants, to_duties
+from tipbot_fw.cores.signal_chain import SignalChain
 
 TS = 0.005
 DEG = math.pi / 180.0

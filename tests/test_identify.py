@@ -18,11 +18,13 @@ import pytest
 from hostsim.model import gains as host_gains
 from hostsim.logs import identify as I
 from hostsim.model.motors import TABLE2
-from hostsim.world.motor_sim import one_motor_fake, simulate_identify
-from tipbot_fw import cli, logfile
+from hostsim.sim.motor_sim import one_motor_fake, simulate_identify
+from tipbot_fw import cli
+from tipbot_fw.record import logfile
 from tipbot_fw import identify as fw
 from tipbot_fw.gains import load_gains
 from conftest import PARAMS_FILE, REPO
+from tipbot_fw.cores.detector_rows import DetectorRows
 
 
 # (Table 2 motor, driver, role, battery volts at rest, seed)
@@ -155,7 +157,7 @@ def test_unusable_logs_get_a_clear_error(tmp_path, capsys, name, kw, error, mess
 
 def test_other_files_are_refused(tmp_path):
     balance = str(tmp_path / "run.log")
-    logfile.write_log(balance, {"stop_reason": "completed"}, np.zeros((3, logfile.N_COLUMNS)))
+    logfile.write_log(balance, {"stop_reason": "completed"}, np.zeros((3, len(DetectorRows.columns))), DetectorRows.columns)
     with pytest.raises(I.NotAnIdentifyLog, match="not an identify log"):
         I.load_log(balance)
     good = _simulated(tmp_path, "good", seconds=0.5, rundown_seconds=0.5)

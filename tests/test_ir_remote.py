@@ -1,4 +1,4 @@
-"""The EV3 IR remote (tipbot_fw.ir_remote): the buttons' commands, the read rate and failed reads,
+"""The EV3 IR remote (tipbot_fw.drive.ir_remote): the buttons' commands, the read rate and failed reads,
 the configuration, the device layer on a fake EV3 tree, and a run driven by its buttons."""
 import math
 
@@ -10,9 +10,9 @@ from conftest import PHYSICAL_GAINS
 from hostsim.world.fake_ev3 import FakeEV3
 from tipbot_fw import cli
 from tipbot_fw import config as fw_config
-from tipbot_fw.logfile import read_log
-from tipbot_fw.ev3io import Ev3Devices, Ev3SetupError
-from tipbot_fw.ir_remote import READ_PERIOD_S, IrRemote, command
+from tipbot_fw.record.logfile import read_log
+from tipbot_fw.io.ev3dev import Ev3Devices, Ev3SetupError
+from tipbot_fw.drive.ir_remote import READ_PERIOD_S, IrRemote, command
 
 LIMITS = {'speed_mps': 0.2, 'yaw_rate_dps': 90.0}
 W = math.radians(90.0)

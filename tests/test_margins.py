@@ -40,7 +40,7 @@ def test_one_stall_holds_the_duties_and_the_robot_rides_it_out(monkeypatch):
     # the first 1.1 s), motors held: the robot stands on (physical gains),
     # the late tick's flags say how many periods the core predicted through
     import numpy as np
-    from hostsim.sim.fil import run_firmware
+    from hostsim.sim.firmware_run import run_firmware
     monkeypatch.setattr(margins, "PUSH_AT_S", 2.5)
     base = dataclasses.replace(load_scenario(margins.BASE_SCENARIO), brick=Brick(), duration_s=4.0)
     sc = margins.margin_scenario(base, "single_stall", 120.0, 0.005)

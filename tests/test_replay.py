@@ -10,11 +10,12 @@ import zlib
 import numpy as np
 import pytest
 
-from hostsim.sim import fil
+from hostsim.sim import firmware_run
 from hostsim.logs import replay
 from hostsim.sim.scenario import parse_scenario
-from tipbot_fw import logfile
+from tipbot_fw.record import logfile
 from conftest import PAPER_GAINS, PHYSICAL_GAINS
+from tipbot_fw import vocabulary
 
 # Small gyro noise and a push: the readings, estimates and inputs move (not a trivial log).
 SCENARIO = {"name": "replay-test", "duration_s": 1.5, "sensors": {"gyro_noise_dps": 0.3, "gyro_bias_dps": 0.7},
@@ -23,7 +24,7 @@ SCENARIO = {"name": "replay-test", "duration_s": 1.5, "sensors": {"gyro_noise_dp
 
 def simulate(path, sysfs=True, config_overrides=None, result=None):
     sc = parse_scenario(dict(SCENARIO, gains=PHYSICAL_GAINS))
-    run = fil.run_firmware(sc, log_path=str(path), sysfs=sysfs, config_overrides=config_overrides)
+    run = firmware_run.run_firmware(sc, log_path=str(path), sysfs=sysfs, config_overrides=config_overrides)
     if result is not None:
         result.append(run)
     return str(path)
@@ -86,13 +87,13 @@ def test_a_log_with_a_stall_replays_exactly_through_the_periods_the_core_predict
     # it missed, and the replay, reading their count from the flags, does the same to the bit
     sc = parse_scenario(dict(SCENARIO, gains=PHYSICAL_GAINS, brick={"single_stall_s": 0.07, "single_stall_at_s": 1.6}))
     path = str(tmp_path / "stall.log")
-    fil.run_firmware(sc, log_path=path, sysfs=True)
+    firmware_run.run_firmware(sc, log_path=path, sysfs=True)
     r = replay.replay_log(path)
-    skipped = (r.rows[:, col(r.header, "flags")].astype(int) >> logfile.SKIP_SHIFT) & logfile.SKIP_MAX
+    skipped = (r.rows[:, col(r.header, "flags")].astype(int) >> vocabulary.SKIP_SHIFT) & vocabulary.SKIP_MAX
     assert 12 <= skipped.max() <= 14 and r.header["loop"]["skipped_periods"] >= skipped.max()
     assert r.exact and r.max_diff == 0.0
     # and the prediction mattered: without it the rows after the stall differ
-    from tipbot_fw.kalman import KalmanCore
+    from tipbot_fw.cores.kalman import KalmanCore
     saved = KalmanCore.skip
     try:
         KalmanCore.skip = lambda self, m: None

@@ -208,7 +208,7 @@ def test_the_load_scenarios_run_on_the_realistic_brick_and_report_what_the_targe
     offset, the saturated share and, on a slope, link 1's lean beside the analytical one."""
     import dataclasses
     from hostsim.sim import metrics
-    from hostsim.sim.fil import run_firmware
+    from hostsim.sim.firmware_run import run_firmware
     from hostsim.sim.scenario import floor_angle_rad, load_scenario
     from hostsim.studies.sim_study import LOAD_SCENARIOS
     assert name in LOAD_SCENARIOS

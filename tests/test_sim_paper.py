@@ -10,8 +10,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from hostsim.errors import TipbotError
 from hostsim.sim import metrics
-from hostsim.sim.fil import run_firmware
+from hostsim.sim.firmware_run import run_firmware
 from hostsim.sim.linear_sim import simulate_linear, simulate_nonlinear
 from hostsim.model.pd import pd_for_gains
 from hostsim.studies.runner import run_scenario, scenario_metrics
@@ -120,12 +121,12 @@ def test_firmware_runs_of_the_paper_scenarios_keep_the_invariants(name, duration
     n = len(run.t_s)
     assert n >= 1 and run.exit_code in (0, 6)                       # completed, or a safety stop
     assert np.all(np.abs(run.u[:, ACT]) <= U_MAX + 1e-9)
-    assert np.all(np.abs(run.u_cmd[:, ACT]) <= U_MAX + 1e-9)
+    assert np.all(np.abs(run.u_applied[:, ACT]) <= U_MAX + 1e-9)
     # The estimate starts at the start pose the firmware is told, at rest, not at the
     # scenario's x~(0).
     np.testing.assert_allclose(run.xhat[0, 2:5], sc.x0_si[2:5], atol=1e-9)
     assert np.all(run.xhat[0, 5:] == 0)
-    # The wheel origin (hostsim.sim.fil): shifted by d_origin_m, the firmware's estimated d is the
+    # The wheel origin (hostsim.sim.firmware_run): shifted by d_origin_m, the firmware's estimated d is the
     # plant's, to an encoder count and the th1 estimate's error times R_w.
     early = run.t_s <= 0.3
     assert np.abs(run.xhat[early, :2] - run.x[early, :2]).max() < 0.002
@@ -164,3 +165,25 @@ def test_the_reference_governor_keeps_section7_within_the_motors():
     assert gov.peak0_v < U_MAX and gov.kappa == 1.0
     # the rest point it starts from: the robot rolled ahead, bent links held by their motors
     assert gov.x_e[0] > 0.1 and np.any(gov.u_e != 0)
+
+
+def test_the_host_modes_run_the_firmwares_default_estimator():
+    # linear and nonlinear with the Kalman filter of the gains' kalman block (in floats, ideal
+    # measurement): they balance Section 8 as the firmware does, their estimate converges, and
+    # the same scenario's firmware run (fixed point, quantized sensors) stays close to them
+    sc = load_scenario("section8")
+    g = load_gains(sc.gains)
+    fw = run_firmware(sc, sysfs=False)
+    for sim in (simulate_linear, simulate_nonlinear):
+        run = sim(g, sc, estimator="kalman")
+        assert run.completed
+        late = slice(3 * len(run.t_s) // 4, None)
+        assert np.abs(run.xhat[late] - run.x[late]).max() < 1e-5
+        assert np.abs(run.u[:, ACT]).max() <= U_MAX + 1e-12
+        n = min(len(run.t_s), len(fw.t_s))
+        assert np.abs(run.x[:n, 2] - fw.x[:n, 2]).max() < 0.01      # th1 within 10 mrad of the firmware's
+    with pytest.raises(TipbotError, match="estimator"):
+        simulate_linear(g, sc, estimator="observer")
+    # `python -m hostsim run/sim --host-estimator kalman`: its own labels, the scenario's bounds on them
+    _, runs = run_scenario(sc, modes=["nonlinear", "firmware"], sysfs=False, host_estimator="kalman")
+    assert sorted(runs) == ["firmware/optimal", "nonlinear-kalman/optimal"]

@@ -75,7 +75,7 @@ def test_the_plan_view_draws_both_paths(tmp_path):
 def test_a_course_driven_with_the_firmware_in_the_loop():
     # the ideal brick: the drive plan tracked to a few centimetres, 0.2 m/s reached and left
     from hostsim.sim import metrics
-    from hostsim.sim.fil import run_firmware
+    from hostsim.sim.firmware_run import run_firmware
     from hostsim.sim.scenario import load_scenario
     base = load_scenario("drive_straight")
     sc = dataclasses.replace(base, brick=dataclasses.replace(base.brick, **{
@@ -94,7 +94,7 @@ def test_a_course_driven_with_the_firmware_in_the_loop():
 
 def test_a_course_beyond_the_gains_is_refused_before_the_run():
     from hostsim.errors import TipbotError
-    from hostsim.sim.fil import run_firmware
+    from hostsim.sim.firmware_run import run_firmware
     from hostsim.sim.scenario import load_scenario
     sc = dataclasses.replace(load_scenario("drive_straight"), course=((0.4, 0.0, 5.0),))
     with pytest.raises(TipbotError, match=r"field course\[0\]\.speed_mps must be a number in"):

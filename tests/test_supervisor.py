@@ -10,10 +10,12 @@ import pytest
 
 import faults
 from conftest import PHYSICAL_GAINS
-from tipbot_fw import config, heartbeat, logfile, safety
+from tipbot_fw import config
+from tipbot_fw.guard import heartbeat, safety
 from tipbot_fw.cues import STOP_WORDS
-from tipbot_fw.feedback import COLOR_NAMES, STATES, stop_state
+from tipbot_fw.io.lights_speaker import COLOR_NAMES, STATES, stop_state
 from tipbot_fw.supervisor import MotorStopper, Watch, _past_hold
+from tipbot_fw import vocabulary
 
 pytestmark = pytest.mark.slow   # real processes or long studies: not in make test-fast
 
@@ -111,9 +113,9 @@ def test_the_watch_sleeps_from_the_calibration_to_the_first_tick(tmp_path):
     # the set-up in between (the core, the start cue, the loop's gc.collect) outlasts the stall
     # timeout on the brick; no motor is driven then
     import fw_support as S
-    from tipbot_fw.clock import VirtualClock
+    from tipbot_fw.io.clock import VirtualClock
     from tipbot_fw.cues import OwnerCues
-    from tipbot_fw.devices import MemoryDevices
+    from tipbot_fw.io.devices import MemoryDevices
     from tipbot_fw.session import run_session
 
     fd, page, words = heartbeat.create_page()
@@ -194,7 +196,7 @@ def test_a_controller_frozen_for_less_than_its_hold_keeps_its_motors_and_catches
     header, rows = r.log()
     assert header['stop_reason'] == 'completed'
     flags = rows[:, [c['name'] for c in header['columns']].index('flags')].astype(int)
-    skipped = flags >> logfile.SKIP_SHIFT
+    skipped = flags >> vocabulary.SKIP_SHIFT
     # one hold of about stall_s / 5 ms periods (the wall clock's scheduling adds a little)
     assert stall_s / 0.005 - 2 <= skipped.max() <= stall_s / 0.005 + 6, skipped.max()
     assert header['loop']['skipped_periods'] >= skipped.max()

@@ -1,4 +1,4 @@
-"""Live telemetry (tipbot_fw.telemetry): datagrams every few ticks in the loop's slack that decode
+"""Live telemetry (tipbot_fw.record.telemetry): datagrams every few ticks in the loop's slack that decode
 to the log's own values, and a network that never disturbs the loop."""
 import socket
 import struct
@@ -7,15 +7,18 @@ import numpy as np
 import pytest
 
 import fw_support as S
-from tipbot_fw import bench, cli, logfile, telemetry
-from tipbot_fw.clock import VirtualClock
-from tipbot_fw.core import make_core
+from tipbot_fw import bench, cli
+from tipbot_fw.record import telemetry
+from tipbot_fw.io.clock import VirtualClock
+from tipbot_fw.cores.core import make_core
 from tipbot_fw.cues import OwnerCues
-from tipbot_fw.devices import MemoryDevices
-from tipbot_fw.logfile import read_log
-from tipbot_fw.replay import signals
+from tipbot_fw.io.devices import MemoryDevices
+from tipbot_fw.record.logfile import read_log
+from tipbot_fw.record.replay import signals
 from tipbot_fw.session import run_session
-from tipbot_fw.telemetry import TelemetryError, TelemetrySender, decode
+from tipbot_fw.record.telemetry import TelemetryError, TelemetrySender, decode
+from tipbot_fw import vocabulary
+from tipbot_fw.cores.detector_rows import DetectorRows
 
 
 @pytest.fixture
@@ -56,10 +59,10 @@ def logged_values(header, rows, gains):
     out = {n: rows[:, names.index(n)] for n in ('time_s', 'tick_s', 'battery_v', 'flags', 'duty_r', 'duty_l',
                                                 'duty_2', 'duty_3')}
     sig = signals(header, rows, gains)
-    for i, s in enumerate(logfile.STATE_NAMES):
-        out['xt_' + s] = sig['x_hat'][:, i]
+    for i, s in enumerate(vocabulary.STATE_NAMES):
+        out['xt_' + s] = sig.x_hat[:, i]
     for name, j in zip(('r', 'l', 'th2', 'th3'), (0, 1, 3, 4)):
-        out['w_' + name], out['u_' + name] = sig['w_hat'][:, j], sig['u'][:, j]
+        out['w_' + name], out['u_' + name] = sig.w_hat[:, j], sig.u[:, j]
     assert sorted(out) == sorted(telemetry.DECODED)
     return out
 
@@ -105,7 +108,7 @@ def test_a_socket_that_fails_outright_is_counted_too(tmp_path, sink):
 def test_the_encoder_follows_the_row_by_name():
     # a row with the same columns in another order and with others between them
     fields = telemetry.ROW_FIELDS['detector']
-    names = list(logfile.MEM_NAMES)[::-1] + ['extra']
+    names = list(DetectorRows.mem_names)[::-1] + ['extra']
     row = np.arange(len(names), dtype='<f8')
     unpack, pack = telemetry.row_copier(fields, names)
     body = telemetry.Layout(0).body
@@ -116,10 +119,10 @@ def test_the_encoder_follows_the_row_by_name():
     kalman_rows = make_core(S.load(), S.fw_config()).rows
     kalman_fields = telemetry.Layout.of_rows(kalman_rows).fields
     assert 'xi_gyro_bias' in kalman_fields and kalman_fields[-2:] == ('rel_r', 'rel_l')
-    assert telemetry.row_copier(fields, logfile.MEM_NAMES)[1].__self__.format == '<16s8s40s112s'
+    assert telemetry.row_copier(fields, DetectorRows.mem_names)[1].__self__.format == '<16s8s40s112s'
     assert telemetry.row_copier(kalman_fields, kalman_rows.mem_names)[1].__self__.format == '<32s136s16s'
     with pytest.raises(TelemetryError, match="the log row has no column xt_th1"):
-        telemetry.row_copier(fields, [n for n in logfile.MEM_NAMES if n != 'xt_th1'])
+        telemetry.row_copier(fields, [n for n in DetectorRows.mem_names if n != 'xt_th1'])
 
 
 def test_foreign_datagrams_are_refused():

@@ -12,8 +12,8 @@ import pytest
 import fw_support as S
 from conftest import REPO
 from hostsim.logs import watch
-from tipbot_fw.replay import signals
-from tipbot_fw.logfile import read_log
+from tipbot_fw.record.replay import signals
+from tipbot_fw.record.logfile import read_log
 
 
 def col(header, name):
@@ -25,11 +25,11 @@ RUN = '''
 import os, sys
 sys.path[:0] = [{tests!r}, os.path.dirname({tests!r})]
 import fw_support as S
-from tipbot_fw.clock import VirtualClock
+from tipbot_fw.io.clock import VirtualClock
 from tipbot_fw.cues import OwnerCues
-from tipbot_fw.devices import MemoryDevices
+from tipbot_fw.io.devices import MemoryDevices
 from tipbot_fw.session import run_session
-from tipbot_fw.telemetry import TelemetrySender
+from tipbot_fw.record.telemetry import TelemetrySender
 
 dev = MemoryDevices()
 dev.source = S.moving_readings()
@@ -73,7 +73,7 @@ def test_watch_records_what_a_run_sends_and_draws_it(tmp_path):
             assert float(r[name]) == rows[int(r['tick']), col(header, column)], name
         for name, (key, j) in (('xt_th1_rad', ('x_hat', 2)), ('xt_d_l_m', ('x_hat', 1)), ('u_r_V', ('u', 0)),
                                ('w_r_V', ('w_hat', 0))):
-            assert float(r[name]) == sig[key][int(r['tick']), j], name
+            assert float(r[name]) == getattr(sig, key)[int(r['tick']), j], name
     assert os.path.getsize(png) > 20000
     # a recording shows again, from the file
     again = str(tmp_path / 'again.png')

@@ -1,6 +1,6 @@
 import sys
 
-from tipbot_fw.safety import SignalGuard, Terminated
+from tipbot_fw.guard.safety import EXIT_INTERRUPT, SignalGuard, Terminated
 
 
 def _main():
@@ -18,7 +18,7 @@ def _main():
             e = guard.raised
         sys.stderr.write('tipbot: {} while starting: nothing was started\n'.format(
             'interrupted' if isinstance(e, KeyboardInterrupt) else e))
-        return 130 if isinstance(e, KeyboardInterrupt) else e.exit_code
+        return EXIT_INTERRUPT if isinstance(e, KeyboardInterrupt) else e.exit_code
     return main(guard=guard)
 
 

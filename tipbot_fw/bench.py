@@ -4,7 +4,7 @@
 control loop (tipbot_fw.loop, the same code as on the robot) for one start tick and N further
 ticks against MemoryDevices and a virtual clock, as a supervised run does: the heartbeat store
 in a shared page, the readings' plausibility checks, the log's rows written to a file in chunks
-(tipbot_fw.logcontainer; the file is removed at the end), and the side task a run has in its
+(tipbot_fw.record.container; the file is removed at the end), and the side task a run has in its
 slack: the owner's cues (tipbot_fw.cues.LoopCues, without a brick: its checks, not the lights'
 sysfs writes). ``--bare`` leaves the heartbeat page, the encoders' bound from the configuration
 and the file out, to measure what they cost. With --telemetry-every, a telemetry datagram every M ticks goes to a UDP
@@ -13,13 +13,13 @@ imports only tipbot_fw, numpy and the standard library (no ev3dev2), and does
 the same start-up work for every N, so the instruction count of N ticks minus that of 0 ticks,
 divided by N, is the cost of one tick including its log row. The fake devices and the clock
 are C-level callables (bench_devices, FrozenClock), so what is counted is the firmware's own
-work; the real device layer's reads and writes come on top (tipbot_fw.ev3io). ``--whole``
+work; the real device layer's reads and writes come on top (tipbot_fw.io.ev3dev). ``--whole``
 counts what the brick pays for a tick: the same supervised loop with the real device layer on
 plain files (FileDevices) and the real clock (MonotonicClock), its time reads and sleeps
 included (the sleeps' kernel time is not instructions).
-Without --gains it uses the repository's gains/physical.json when there is one, else synthetic
-gains with the structure of the real ones. `--device-layer` instead counts the real device
-layer (tipbot_fw.ev3io: 5 reads, 4 writes per tick) on plain files (FileDevices).
+Without --gains it uses the repository's gains/physical.json (on the brick: `python3 -m
+tipbot_fw bench`, with the deployed gains). `--device-layer` instead counts the real device
+layer (tipbot_fw.io.ev3dev: 5 reads, 4 writes per tick) on plain files (FileDevices).
 
 brick_bench() is the on-robot benchmark used by `python3 -m tipbot_fw bench`: the time of the
 reads, the compute and the writes of a tick, the whole tick, and a verdict on the period.
@@ -36,125 +36,22 @@ import time
 
 import numpy as np
 
-from tipbot_fw import heartbeat, logfile, slack
-from tipbot_fw.clock import MonotonicClock
-from tipbot_fw import kalman
+from tipbot_fw import side_tasks
 from tipbot_fw.config import defaults
-from tipbot_fw.core import make_core
+from tipbot_fw.cores.core import make_core
 from tipbot_fw.cues import OwnerCues
-from tipbot_fw.devices import MemoryDevices
-from tipbot_fw.drive import drive_problem
-from tipbot_fw.pathfollow import follow_course
-from tipbot_fw.remote import live_plan, remote_side
-from tipbot_fw.gains import ACTUATED_INPUTS, N_INPUTS, UNUSED_INPUT, gains_from_dict, load_gains
+from tipbot_fw.drive.pathfollow import follow_course
+from tipbot_fw.drive.plan import drive_problem
+from tipbot_fw.drive.remote import live_plan, remote_side
+from tipbot_fw.gains import load_gains
+from tipbot_fw.guard import heartbeat
+from tipbot_fw.guard.plausibility import EncoderBound
+from tipbot_fw.guard.safety import SafetyStop
+from tipbot_fw.io.clock import MonotonicClock
+from tipbot_fw.io.devices import MemoryDevices
 from tipbot_fw.loop import ControlLoop
-from tipbot_fw.plausibility import EncoderBound
-from tipbot_fw.safety import SafetyStop
-from tipbot_fw.telemetry import TelemetrySender
-
-
-def synthetic_gains_doc(A, B, K, ts_s, Q=None, R=None, u_max_v=7.6, detector_pole=0.2,
-                        state_units=None, model_variant='physical', generator='synthetic', **extra):
-    """A schema-2 gains document around a model (A, B) and a stabilizing gain K (SI): the detector
-    of Section 6 with G_w = B_a^+ (so L2 = E G_w projects on range(E): (L2 C - I) E = 0),
-    L1 = Abar - detector_pole I (so Abar - L1 C = detector_pole I), K_w = I on the actuated
-    inputs (it cancels an input disturbance), and a Kalman block (synthetic_kalman_block).
-    extra: further fields (parameters, ...)."""
-    n = A.shape[0]
-    Ba = B[:, ACTUATED_INPUTS]
-    G = np.zeros((N_INPUTS, n))
-    G[ACTUATED_INPUTS, :] = np.linalg.pinv(Ba)
-    L2 = Ba.dot(G[ACTUATED_INPUTS, :])
-    L1 = (np.eye(n) - L2).dot(A) - detector_pole * np.eye(n)
-    K_w = np.diag([0.0 if i == UNUSED_INPUT else 1.0 for i in range(N_INPUTS)])
-    rho = float(np.max(np.abs(np.linalg.eigvals(A - B.dot(K)))))
-    doc = {
-        'schema_version': 2, 'model_variant': model_variant, 'ts_s': ts_s,
-        'state_names': list(logfile.STATE_NAMES),
-        'state_units': list(logfile.STATE_UNITS if state_units is None else state_units),
-        'input_names': ['u_r', 'u_l', 'u_th1', 'u_th2', 'u_th3'], 'input_units': ['V'] * N_INPUTS,
-        'actuated_inputs': list(ACTUATED_INPUTS),
-        'A': A.tolist(), 'B': B.tolist(), 'C': np.eye(n).tolist(), 'E': B.tolist(),
-        'K': K.tolist(), 'K_w': K_w.tolist(), 'L1': L1.tolist(), 'L2': L2.tolist(),
-        'G_w': G.tolist(), 'detector_eigenvalues': [detector_pole] * n, 'closed_loop_spectral_radius': rho,
-        'Q': (np.eye(n) if Q is None else Q).tolist(), 'R': (np.eye(N_INPUTS) if R is None else R).tolist(),
-        'u_max_v': u_max_v, 'parameters': {}, 'parameters_sha256': '', 'model_options': {},
-        'generator': generator,
-        'kalman': synthetic_kalman_block(A, B, K, K_w, ts_s),
-    }
-    doc.update(extra)
-    return doc
-
-
-def filter_riccati(A, C, Q, R, iterations=100):
-    """The steady-state prior covariance P = A P A' - A P C' (C P C' + R)^-1 C P A' + Q by the
-    structure-preserving doubling algorithm (quadratic convergence, numpy only)."""
-    n = A.shape[0]
-    Ak = A.T.copy()
-    G = C.T.dot(np.linalg.solve(R, C))
-    H = Q.copy()
-    for _ in range(iterations):
-        W = np.eye(n) + G.dot(H)
-        wa = np.linalg.solve(W, Ak)
-        H_next = H + Ak.T.dot(H).dot(wa)
-        G = G + Ak.dot(np.linalg.solve(W, G)).dot(Ak.T)
-        Ak = Ak.dot(wa)
-        done = np.max(np.abs(H_next - H)) <= 1e-15 * np.max(np.abs(H_next))
-        H = H_next
-        if done:
-            break
-    return H
-
-
-def synthetic_kalman_block(A, B, K, K_w, ts_s, rw_m=0.034):
-    """A `kalman` block for a model (SI) with round noise figures (1-count encoders, a 0.5
-    deg/s gyro, 0.3 V of input noise, 1 V^2/s disturbance and (0.01 deg/s)^2/s bias random
-    walks on the wheels' disturbances and the bias), numpy only (this runs on the brick)."""
-    dist = (0, 1)
-    Ba = B[:, ACTUATED_INPUTS]
-    aa, ba, ca = kalman.augmented_model(A, Ba, rw_m, dist)
-    n = aa.shape[0]
-    count = 2.0 * math.pi / 360.0
-    deg = math.pi / 180.0
-    Rn = np.diag([count ** 2 / 12.0] * 4 + [(1.0 / 12.0 + 0.25) * deg ** 2])
-    Qn = np.zeros((n, n))
-    Qn[:10, :10] = Ba.dot(Ba.T) * 0.09
-    Qn[10, 10] = Qn[11, 11] = ts_s
-    Qn[n - 1, n - 1] = (0.01 * deg) ** 2 * ts_s
-    P = filter_riccati(aa, ca, Qn, Rn)
-    L = np.linalg.solve(ca.dot(P).dot(ca.T) + Rn, ca.dot(P)).T
-    act = list(ACTUATED_INPUTS)
-    Ka = np.hstack([K[act, :], K_w[np.ix_(act, [act[i] for i in dist])], np.zeros((4, 1))])
-    names = list(logfile.STATE_NAMES) + ['w_r', 'w_l', 'gyro_bias']
-    return {
-        'state_names': names, 'state_units': list(logfile.STATE_UNITS) + ['V', 'V', 'rad/s'],
-        'measurement_names': list(kalman.MEASUREMENTS), 'measurement_units': ['rad'] * 4 + ['rad/s'],
-        'wheel_radius_m': rw_m, 'A': aa.tolist(), 'B': ba.tolist(), 'C': ca.tolist(), 'L': L.tolist(),
-        'K': Ka.tolist(), 'noise': {'synthetic': True},
-        'law': {'M': kalman.fold(aa, ba, ca, L, Ka, rw_m).tolist(),
-                'state_bounds': [1.0, 1.0, 4.0, 4.0, 4.0, 20.0, 20.0, 200.0, 200.0, 200.0, 100.0, 100.0, 1.0]},
-    }
-
-
-def synthetic_gains(ts_s=0.005, seed=1):
-    """Valid gains with the structure of the real ones (synthetic_gains_doc) for a random
-    robot-like model; K from a few hundred Riccati iterations (Q = I, R = I): stabilizing, with
-    values like an LQR's, and no scipy (this runs on the brick)."""
-    rng = np.random.RandomState(seed)
-    n = 10
-    A = np.eye(n) + ts_s * np.vstack([np.hstack([np.zeros((5, 5)), np.eye(5)]),
-                                      rng.uniform(-2.0, 2.0, (5, 10))])
-    B = np.zeros((n, 5))
-    B[5:, ACTUATED_INPUTS] = ts_s * rng.uniform(-20.0, 20.0, (5, 4))
-    Ba = B[:, ACTUATED_INPUTS]
-    P = np.eye(n)
-    for _ in range(300):
-        Ka = np.linalg.solve(np.eye(4) + Ba.T.dot(P).dot(Ba), Ba.T.dot(P).dot(A))
-        P = np.eye(n) + A.T.dot(P).dot(A - Ba.dot(Ka))
-    K = np.zeros((5, n))
-    K[ACTUATED_INPUTS, :] = Ka
-    doc = synthetic_gains_doc(A, B, K, ts_s, generator='tipbot_fw.bench.synthetic_gains')
-    return gains_from_dict(doc, '<synthetic>', 'synthetic')
+from tipbot_fw.record import logfile
+from tipbot_fw.record.telemetry import TelemetrySender
 
 
 def _readings(period=64):
@@ -186,7 +83,7 @@ def bench_devices():
 
 
 # --drive: a course driven the whole run (forward and back, turning): a tick copies its row of
-# the plan whatever the course (tipbot_fw.drive), so any course costs the same.
+# the plan whatever the course (tipbot_fw.drive.plan), so any course costs the same.
 BENCH_SEGMENT = [(0.02, math.radians(5.0), 1.0), (-0.02, math.radians(-5.0), 1.0)]
 BENCH_REPEATS = 30
 
@@ -199,7 +96,7 @@ class _SteadyReceiver(object):
         return 0.1, 0.0
 
 
-def run_memory(n_ticks, gains=None, bare=False, sender=None, whole=False, drive=False, follow=False,
+def run_memory(n_ticks, gains, bare=False, sender=None, whole=False, drive=False, follow=False,
                remote=False):
     """The loop for 1 + n_ticks ticks on bench_devices() and a FrozenClock, with the owner's cues
     (no brick) and `sender` (a TelemetrySender or None) in its slack -> (LoopStats, log). Unless
@@ -208,12 +105,10 @@ def run_memory(n_ticks, gains=None, bare=False, sender=None, whole=False, drive=
     and the real clock (MonotonicClock: its reads of the time and its sleeps) included; the
     overrun stop is off (an emulator may run a tick late). drive: a course's rows, made before the
     run (the tick's cost); follow: made in the slack as a run makes them, corrected from the
-    robot's pose (tipbot_fw.pathfollow: the tick's cost and the follower's, between ticks); remote:
-    driven by a remote's live plan instead (tipbot_fw.remote; a receiver that always has the same
+    robot's pose (tipbot_fw.drive.pathfollow: the tick's cost and the follower's, between ticks); remote:
+    driven by a remote's live plan instead (tipbot_fw.drive.remote; a receiver that always has the same
     command: the plan's rows and the poll, between ticks)."""
     config = defaults()
-    if gains is None:
-        gains = synthetic_gains()
     files = FileDevices.in_temporary_dir() if whole else None
     dev = files.devices if whole else bench_devices()
     core = make_core(gains, config, dev.counts_per_rot)
@@ -224,7 +119,7 @@ def run_memory(n_ticks, gains=None, bare=False, sender=None, whole=False, drive=
     elif drive:
         # the same plan whatever n_ticks (tools/tick-cost subtracts a run of 0 ticks: making the
         # plan is start-up, not a tick's cost); a longer run holds its last row. Followed as a run
-        # follows it: its rows made in the slack, corrected from the pose (tipbot_fw.pathfollow)
+        # follows it: its rows made in the slack, corrected from the pose (tipbot_fw.drive.pathfollow)
         follower = follow_course(gains, core, BENCH_SEGMENT * BENCH_REPEATS, None if follow else n_ticks + 2)
     extra = {}
     writer = None
@@ -249,7 +144,7 @@ def run_memory(n_ticks, gains=None, bare=False, sender=None, whole=False, drive=
                        battery_period_s=config['battery_period_s'],
                        overrun_window_s=config['limits']['overrun_window_s'],
                        duration_s=(n_ticks + 1) * gains.ts_s, realtime_priority=0, **extra)
-    loop.side = slack.combine(OwnerCues(streams=()).in_loop(loop, config['limits']['warn_battery_v']),
+    loop.side = side_tasks.combine(OwnerCues(streams=()).in_loop(loop, config['limits']['warn_battery_v']),
                               sender.attach(log, loop.stats, core) if sender else None,
                               follower.side() if follow else None,
                               remote_side(_SteadyReceiver(), live, gains.ts_s) if remote else None)
@@ -386,13 +281,13 @@ REPO_GAINS = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file
 
 
 class FileDevices(object):
-    """tipbot_fw.ev3io.Ev3Devices on plain files laid out as the sysfs attributes it opens, for
+    """tipbot_fw.io.ev3dev.Ev3Devices on plain files laid out as the sysfs attributes it opens, for
     counting the device layer's own instructions per tick (python-ev3dev2's discovery is
     skipped: the virtual brick has no ev3dev2, and discovery is not part of a tick)."""
 
     def __init__(self, root):
         from tipbot_fw.config import defaults as config_defaults
-        from tipbot_fw.ev3io import BATTERY_PATH, Ev3Devices, SysfsDevices, device_spec
+        from tipbot_fw.io.ev3dev import BATTERY_PATH, Ev3Devices, SysfsDevices, device_spec
         config = config_defaults()
         motors, gyro, stop_action = device_spec(config)
         paths = {}
@@ -491,10 +386,12 @@ def main(argv=None):
         return 0
     if gains_path is None and os.path.isfile(REPO_GAINS):
         gains_path = REPO_GAINS
-    gains = load_gains(gains_path) if gains_path else None
-    if (drive or remote) and (gains is None or drive_problem(gains, defaults())):
-        sys.stderr.write('bench: --drive: {}\n'.format(drive_problem(gains, defaults()) if gains else
-                                                       'needs gains with a drive reference (--gains FILE)'))
+    if gains_path is None:
+        sys.stderr.write('bench: no gains: give --gains FILE (the repository has none at {})\n'.format(REPO_GAINS))
+        return 2
+    gains = load_gains(gains_path)
+    if (drive or remote) and drive_problem(gains, defaults()):
+        sys.stderr.write('bench: --drive: {}\n'.format(drive_problem(gains, defaults())))
         return 2
     sender, sink = local_sender(every) if every else (None, None)
     stats, _ = run_memory(n_ticks, gains, bare, sender, whole, drive, follow, remote)
@@ -502,12 +399,12 @@ def main(argv=None):
         sys.stderr.write('bench: the loop stopped after {} ticks\n'.format(stats.ticks))
         return 1
     sys.stdout.write('ticks {} (+1 start tick), gains {}{}{}\n'.format(
-        n_ticks, gains_path or 'synthetic', ', bare (no heartbeat, plausibility or log file)' if bare else
+        n_ticks, gains_path, ', bare (no heartbeat, plausibility or log file)' if bare else
         ', whole (the device layer on files and the real clock)' if whole else '',
         ', driving a course' + (', followed in the plane' if follow else '') if drive else
         ', driven by a remote' if remote else ''))
     if sender is not None:
-        ts_s = gains.ts_s if gains else 0.005
+        ts_s = gains.ts_s
         sys.stdout.write('telemetry: {} datagrams of {} bytes in {} ticks (one every {}: {:.0f} per second at '
                          '{:g} ms), {} not sent\n'.format(sender.sent, sender.size, n_ticks + 1, every,
                                                          1.0 / (every * ts_s), ts_s * 1e3, sender.errors))

@@ -3,7 +3,7 @@
 A still gyro still drifts: its angle moves by its bias times the window (1-2 deg/s is common),
 so the angle change is judged against the drift that the measured mean rate explains, not
 against zero. The samples of the first ``settle_s`` are read but not used: after the mode
-switch to GYRO-G&A (tipbot_fw.ev3io, at start-up) the first samples may still be the
+switch to GYRO-G&A (tipbot_fw.io.ev3dev, at start-up) the first samples may still be the
 previous mode's, an angle counted since the sensor was plugged in and no rate.
 
 What the window cannot tell apart: a bias from a steady turn. A held robot does not turn
@@ -11,7 +11,7 @@ steadily, so a mean rate beyond ``max_bias_dps`` is taken for a turn (or a gyro 
 balance with); any other movement changes the rate (``max_rate_spread_dps``) or moves the
 angle more than the rate explains (``max_angle_change_deg``: a knock between two samples).
 """
-from tipbot_fw.safety import CalibrationError, DeviceFailure
+from tipbot_fw.guard.safety import CalibrationError, DeviceFailure
 
 
 class GyroCalibration(object):
@@ -36,6 +36,13 @@ def sample_counts(cal_config, period_s):
     """-> (samples read and not used, samples used) of a calibration at period_s."""
     return (int(round(cal_config['settle_s'] / period_s)),
             max(2, int(round(cal_config['duration_s'] / period_s))))
+
+
+def window_s(cal_config, period_s):
+    """Seconds from the calibration's first sample to its last, as it schedules them (the
+    session records when it ended; the host's simulated hand holds the robot this long)."""
+    settle, n = sample_counts(cal_config, period_s)
+    return (settle + n - 1) * period_s
 
 
 def measure_gyro(devices, clock, period_s, cal_config):

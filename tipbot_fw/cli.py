@@ -1,5 +1,5 @@
 """Command line: python3 -m tipbot_fw {run,check,calibrate,bench,identify,fall-test,swing-test} ... (exit codes:
-tipbot_fw.safety).
+tipbot_fw.guard.exit_codes).
 
 Order of a run: the signal handlers (before anything else), the supervisor's page if there is
 one (tipbot_fw.supervisor), the configuration, gains and telemetry target (--telemetry: its
@@ -10,18 +10,20 @@ command line unchanged (the launcher passes its arguments on).
 import argparse
 import os
 
-from tipbot_fw import experiments, heartbeat, identify, logfile, safety
+from tipbot_fw.guard import exit_codes, heartbeat, safety
+from tipbot_fw import experiments, identify
+from tipbot_fw.record import logfile
 from tipbot_fw.calibration import calibrate_gyro
-from tipbot_fw.clock import MonotonicClock
+from tipbot_fw.io.clock import MonotonicClock
 from tipbot_fw.config import (SYSFS_ROOT, SYSFS_ROOT_ENV, ConfigError, check_config_against_gains,
                               default_sysfs_root, load_config)
 from tipbot_fw.console import say as _say
-from tipbot_fw.course import CourseError, read_course
+from tipbot_fw.drive.course import CourseError, read_course
 from tipbot_fw.cues import OwnerCues
-from tipbot_fw.feedback import BrickSignals
+from tipbot_fw.io.lights_speaker import BrickSignals
 from tipbot_fw.gains import GainsError, load_gains
 from tipbot_fw.session import log_refused_start, open_log, run_session
-from tipbot_fw.telemetry import DEFAULT_EVERY, TelemetryError, TelemetrySender
+from tipbot_fw.record.telemetry import DEFAULT_EVERY, TelemetryError, TelemetrySender
 
 CHECK_PERIOD_S = 0.005   # gyro sampling period for check/calibrate (no gains file involved)
 
@@ -44,7 +46,7 @@ def _positive_int(text):
 
 def _parser():
     p = argparse.ArgumentParser(prog='python3 -m tipbot_fw', description='tipbot firmware',
-                                epilog=safety.__doc__.split('\n', 1)[1],
+                                epilog=exit_codes.help_text(),
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = p.add_subparsers(dest='command')
 
@@ -108,7 +110,7 @@ def _open_devices(config, sysfs_root, source):
     """-> (Ev3Devices, None), or (None, why) after saying why on one line (missing device, wrong
     driver: named by the configuration ``source`` and field; no ev3dev2)."""
     try:
-        from tipbot_fw.ev3io import Ev3Devices, Ev3SetupError   # late: needs python-ev3dev2, only on the robot
+        from tipbot_fw.io.ev3dev import Ev3Devices, Ev3SetupError   # late: needs python-ev3dev2, only on the robot
     except Exception as e:
         why = '{}: {}'.format(type(e).__name__, e)
     else:
@@ -230,7 +232,7 @@ def _course(args, gains, config):
     if getattr(args, 'course', None) is None:
         return None
     # imported here: a run that stands does not keep the drive's modules in the brick's memory
-    from tipbot_fw.drive import drive_problem
+    from tipbot_fw.drive.plan import drive_problem
     problem = drive_problem(gains, config)
     if problem:
         raise CourseError('{}: cannot drive: {}'.format(args.course, problem))
@@ -242,8 +244,8 @@ def _remote(args, gains, config):
     problem), or None."""
     if getattr(args, 'remote', None) is None:
         return None
-    from tipbot_fw.drive import drive_problem
-    from tipbot_fw.remote import Receiver, RemoteError, allowed_host
+    from tipbot_fw.drive.plan import drive_problem
+    from tipbot_fw.drive.remote import Receiver, RemoteError, allowed_host
     problem = drive_problem(gains, config)
     if args.course is not None:
         problem = '--remote and --course: one source of commands at a time'
@@ -286,16 +288,16 @@ def _log_path(args):
 
 def _ir_remote(args, gains, config, devices):
     """The EV3 IR remote as the run's command source when the devices have one and no --course
-    or --remote is given (tipbot_fw.ir_remote), or None."""
+    or --remote is given (tipbot_fw.drive.ir_remote), or None."""
     ir = getattr(devices, 'ir_remote', None)
     if ir is None or args.course_segments is not None or args.remote_receiver is not None:
         return None
-    from tipbot_fw.drive import drive_problem
+    from tipbot_fw.drive.plan import drive_problem
     problem = drive_problem(gains, config)
     if problem:
         _say('IR remote on {}: cannot drive ({}): the robot balances where it is let go'.format(ir[0], problem))
         return None
-    from tipbot_fw.ir_remote import IrRemote
+    from tipbot_fw.drive.ir_remote import IrRemote
     _say('driving by the IR remote on {}, channel {} (red: left wheel, blue: right wheel)'.format(*ir))
     return IrRemote(devices.read_ir_remote, gains.kalman.reference.limits, 'ir:{} channel {}'.format(*ir))
 

@@ -6,11 +6,11 @@ Every field is validated; errors name the file and the dotted field path. Fields
   ports.gyro                                   sensor port, in1..in4
   ports.ir_remote                              the IR sensor's port (in1..in4), or null (the default):
                                                run without --course or --remote drives by the EV3 IR
-                                               remote's buttons (tipbot_fw.ir_remote)
+                                               remote's buttons (tipbot_fw.drive.ir_remote)
   ir_remote_channel                            the remote's channel (its red slider), 1..4
   drivers.<device>                             expected driver name (checked by the device layer)
-  estimator                                    kalman (the default: tipbot_fw.kalman) or detector (the
-                                               paper's Section 6 robust detector: tipbot_fw.detector_core)
+  estimator                                    kalman (the default: tipbot_fw.cores.kalman) or detector (the
+                                               paper's Section 6 robust detector: tipbot_fw.cores.detector_core)
   stop_action                                  what a stopped motor does: coast or brake
   polarity.<motor>                             +1/-1: multiplies the measured counts AND the duty
   gyro_sign                                    +1/-1: +1 if a positive gyro rate is a forward tilt
@@ -37,7 +37,7 @@ Every field is validated; errors name the file and the dotted field path. Fields
   filters.encoder_rate_cutoff_hz               detector only: low-pass of the differentiated encoder positions
   filters.gyro_rate_cutoff_hz                  detector only: low-pass of the gyro rate (th1_dot)
   filters.disturbance_cutoff_hz                detector only: low-pass of the disturbance estimate w^
-                                               before the law uses it (tipbot_fw.detector); null = none
+                                               before the law uses it (tipbot_fw.cores.detector); null = none
   gyro_calibration.settle_s                    gyro samples read and not used at start (the first
                                                ones after the mode switch may be the old mode's)
   gyro_calibration.duration_s                  then the stillness window for the bias
@@ -46,7 +46,7 @@ Every field is validated; errors name the file and the dotted field path. Fields
   gyro_calibration.max_angle_change_deg        angle change allowed in that window beyond the
                                                drift the mean rate explains (tipbot_fw.calibration)
   gyro_bias_time_constant_s                    detector only: slow bias tracking while running; null =
-                                               off (the default: see tipbot_fw.signals for why); the
+                                               off (the default: see tipbot_fw.cores.signal_chain for why); the
                                                Kalman filter estimates the bias itself
   gyro_bias_quiet_dps                          detector only: the tracking learns only from samples
                                                whose corrected rate is within +- this (at rest)
@@ -64,11 +64,9 @@ import copy
 import os
 
 from tipbot_fw import fields
+from tipbot_fw.vocabulary import MOTOR_ROLES
 
 DEFAULT_PATH = os.path.join(os.path.dirname(os.path.abspath(__file__)), 'default_config.json')
-
-# The four motors' roles, in the order of every per-motor tuple (duties, counts, polarities).
-MOTOR_ROLES = ('right_wheel', 'left_wheel', 'joint2', 'joint3')
 
 # The ev3dev sysfs tree; TIPBOT_SYSFS_ROOT names another (a fake EV3 behind the launcher: make
 # sim-brick), --sysfs-root one for a single command.

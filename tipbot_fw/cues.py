@@ -11,7 +11,7 @@ not the brick's screen but a second channel of the same session: the words go to
 Why a run stopped is already on stderr (the session's "stopped:" line), so its short form goes
 to the screen only.
 
-Lights and tones (tipbot_fw.feedback; each state's light pair and melody are there) never touch
+Lights and tones (tipbot_fw.io.lights_speaker; each state's light pair and melody are there) never touch
 a control tick: "hold" plays before the gyro calibration, a stop reason after the motors are
 stopped and the log is written, both blocking. "let go" sets its lights and starts its first
 note right before the first tick; the rest of its melody, "balancing" (after BALANCING_AFTER_S of
@@ -22,7 +22,7 @@ import math
 import os
 import sys
 
-from tipbot_fw.feedback import stop_state
+from tipbot_fw.io.lights_speaker import stop_state
 
 # The loop has run this long: tell the owner the robot balances.
 BALANCING_AFTER_S = 1.0
@@ -42,7 +42,7 @@ STOP_WORDS = {
 class OwnerCues(object):
     """``streams``: where the words go; None: sys.stdout and sys.stderr as they are when a cue
     is given (only stderr with screen=False: --quiet); () for no words. ``brick``: a
-    tipbot_fw.feedback.BrickSignals for the lights and tones, or None (no brick, --quiet,
+    tipbot_fw.io.lights_speaker.BrickSignals for the lights and tones, or None (no brick, --quiet,
     simulations)."""
 
     def __init__(self, streams=None, brick=None, screen=True):
@@ -68,7 +68,7 @@ class OwnerCues(object):
         self._show('LET GO NOW: balancing')
 
     def in_loop(self, loop, warn_battery_v):
-        """The side task (tipbot_fw.slack) that gives the cues while `loop` runs."""
+        """The side task (tipbot_fw.side_tasks) that gives the cues while `loop` runs."""
         return LoopCues(self, loop.period_s, loop.battery_every, loop.stats, warn_battery_v)
 
     def battery_warning(self, battery_v, warn_battery_v):
@@ -116,7 +116,7 @@ def _same_file(a, b):
 
 
 class LoopCues(object):
-    """The cues given while the loop runs, as a side task (tipbot_fw.slack): called with k, the
+    """The cues given while the loop runs, as a side task (tipbot_fw.side_tasks): called with k, the
     ticks done, it does at most one light or tone write that is due and returns the tick at
     which it wants to be called next. Times become ticks of period_s; the battery is the
     loop's own reading (stats.battery_v), checked about once a battery period (every

@@ -27,7 +27,7 @@ motor could not hold the link); the gyro watches link 1 (a turn faster than 30 d
 ticks stops the test: link 1 was not held). The host fits the joint's equation of motion with the
 motor's parameters: its lever (gravity torque) and inertia.
 
-Safety as in every command that drives motors (tipbot_fw.safety.run_guarded): signals become
+Safety as in every command that drives motors (tipbot_fw.guard.safety.run_guarded): signals become
 exceptions, whatever ends the test the motors are stopped first, then the log is written. A joint
 beyond ``limits.th2_rad``/``th3_rad`` stops it (exit 6); a failed read exit 5; low battery exit 4.
 Python 3.5 and numpy 1.12 (the brick's).
@@ -38,14 +38,14 @@ import sys
 import time
 
 import tipbot_fw
-from tipbot_fw import logfile
+from tipbot_fw.record import logfile
 from tipbot_fw.calibration import calibrate_gyro
 from tipbot_fw.console import say as _say
-from tipbot_fw.heartbeat import NOT_SUPERVISED
-from tipbot_fw.plausibility import check_battery
+from tipbot_fw.guard.heartbeat import NOT_SUPERVISED
+from tipbot_fw.guard.plausibility import check_battery
 from tipbot_fw.session import BeatingClock
-from tipbot_fw.safety import (EXIT_OK, EXIT_ERROR, EXIT_REFUSED, DeviceFailure, JointLimit, LowBattery,
-                              SafetyStop, run_guarded, watchdog_stop)
+from tipbot_fw.guard.exit_codes import EXIT_ERROR, EXIT_OK, EXIT_REFUSED
+from tipbot_fw.guard.safety import DeviceFailure, JointLimit, LowBattery, SafetyStop, run_guarded, watchdog_stop
 
 KINDS = ('fall', 'swing')
 EXPERIMENT_VERSION = 1
@@ -168,7 +168,7 @@ class Joints(object):
 
 
 def write_experiment_log(path, header, rows):
-    """An experiment log: the run log's container with COLUMNS (tipbot_fw.logfile.read_log reads it)."""
+    """An experiment log: the run log's container with COLUMNS (tipbot_fw.record.logfile.read_log reads it)."""
     import numpy as np    # late: the experiment's loop does not need it
     body = np.frombuffer(array.array('d', rows).tobytes(), dtype='=f8')
     logfile.write_log(path, header, body.reshape(-1, N_COLUMNS), columns=COLUMNS)
@@ -336,7 +336,7 @@ def add_arguments(sp, kind):
 
 def main_experiment(kind, args, config, devices, heartbeat=NOT_SUPERVISED, clock=None):
     """The fall-test and swing-test subcommands (tipbot_fw.cli). -> exit code."""
-    from tipbot_fw.clock import MonotonicClock
+    from tipbot_fw.io.clock import MonotonicClock
     name = kind if kind == 'fall' else 'swing{}'.format(args.joint)
     log_path = args.log or logfile.default_path(name)
     stop = getattr(args, 'stop_deg', DEFAULTS['stop_deg'])

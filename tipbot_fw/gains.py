@@ -15,12 +15,10 @@ import hashlib
 import numpy as np
 
 from tipbot_fw import fields
-
-SCHEMA_VERSION = 2
-N_STATES = 10
-N_INPUTS = 5
-ACTUATED_INPUTS = [0, 1, 3, 4]
-UNUSED_INPUT = 2  # u_th1: link 1 has no motor
+from tipbot_fw.cores.kalman_design import fold, law_gain, measurement_matrix, spectral_radius
+from tipbot_fw.vocabulary import (ACTUATED_INPUTS, DISTURBANCE_NAMES, GAINS_SCHEMA_VERSION, GYRO_BIAS,
+                                  INTEGRATOR_NAMES, MEASUREMENT_NAMES, MEASUREMENT_UNITS, N_INPUTS, N_STATES,
+                                  STATE_NAMES, STATE_UNITS, UNUSED_INPUT, integrator_count)
 
 # Allowed units per state index, and the factor s with x_file = s * x_SI.
 _LENGTH_UNITS = {'m': 1.0, 'cm': 100.0}
@@ -63,14 +61,6 @@ def _check_zero(m, key, what, f):
         f.fail(key, '{} must be zero (link 1 is unactuated)'.format(what))
 
 
-def spectral_radius(m):
-    """Of a product of the file's matrices: inf when an entry overflowed (a 1e308 in B times K),
-    which the stability checks then refuse like any other unstable loop, naming the field."""
-    if not np.all(np.isfinite(m)):
-        return float('inf')
-    return float(np.max(np.abs(np.linalg.eigvals(m))))
-
-
 def gains_from_dict(doc, source='<gains>', sha256=None, expected_ts_s=None, check_kalman=True):
     """Validate a parsed gains document and return Gains in SI. See load_gains().
     check_kalman=False skips the kalman block (a host tool rebuilding it)."""
@@ -83,9 +73,9 @@ def gains_from_dict(doc, source='<gains>', sha256=None, expected_ts_s=None, chec
     g.sha256 = sha256
 
     v = doc['schema_version']
-    if isinstance(v, bool) or v != SCHEMA_VERSION:
-        f.fail('schema_version', 'is {!r}, this firmware reads only {}'.format(v, SCHEMA_VERSION))
-    g.schema_version = SCHEMA_VERSION
+    if isinstance(v, bool) or v != GAINS_SCHEMA_VERSION:
+        f.fail('schema_version', 'is {!r}, this firmware reads only {}'.format(v, GAINS_SCHEMA_VERSION))
+    g.schema_version = GAINS_SCHEMA_VERSION
     if doc['model_variant'] not in ('paper', 'physical'):
         f.fail('model_variant', "is {!r}, expected 'paper' or 'physical'".format(doc['model_variant']))
     g.model_variant = doc['model_variant']
@@ -182,7 +172,7 @@ def gains_from_dict(doc, source='<gains>', sha256=None, expected_ts_s=None, chec
 # Scalars: field -> (lo, hi, unit, why), checked before anything uses them.
 SCALAR_BOUNDS = {
     'ts_s': (0.001, 0.050, 's', 'a loop period of 1 to 50 ms (the brick cannot tick faster; slower does not balance)'),
-    'u_max_v': (1.0, 11.0, 'V', 'a motor voltage limit an EV3 battery can give (tipbot_fw.plausibility)'),
+    'u_max_v': (1.0, 11.0, 'V', 'a motor voltage limit an EV3 battery can give (tipbot_fw.guard.plausibility)'),
 }
 # Matrices, in SI after the unit conversion: field -> largest |entry| a design of this robot can
 # have, and why. 10 to 100 times what the committed designs have: a relabelled unit (x100) or a
@@ -231,7 +221,6 @@ def _kalman_check(check):
 
 
 def _kalman_measures(g, k):
-    from tipbot_fw.kalman import measurement_matrix    # here: tipbot_fw.kalman imports this module
     if np.max(np.abs(k.C - measurement_matrix(k.n, k.wheel_radius_m, k.n - k.n_filter))) > \
             _ZERO_RTOL * max(1.0, 1.0 / k.wheel_radius_m):
         return ('must measure [d/R_w - th1 (2), th2, th3, th1_dot + gyro_bias] with R_w = '
@@ -250,9 +239,7 @@ def _kalman_robot(g, k):
 def _kalman_law(g, k):
     """K_a = [K_act, K_w_act on the estimated disturbances, 0 on the bias, the integrators']: the
     file's own law (its integrators' gains are the block's own)."""
-    act = ACTUATED_INPUTS
-    law = np.hstack([g.K[act, :], g.K_w[np.ix_(act, [act[i] for i in k.disturbance_inputs])], np.zeros((4, 1)),
-                     k.K[:, k.n_filter:]])
+    law = law_gain(g.K, g.K_w, k.disturbance_inputs, k.K[:, k.n_filter:])
     err = np.abs(k.K - law)
     if np.max(err) > 1e-9 * max(1.0, float(np.max(np.abs(law)))):
         j = int(np.unravel_index(np.argmax(err), err.shape)[1])
@@ -278,7 +265,6 @@ def _kalman_wheel(g, k):
 
 
 def _kalman_fold(g, k):
-    from tipbot_fw.kalman import fold
     ref = fold(k.A, k.B, k.C, k.L, k.K, k.wheel_radius_m, k.n - k.n_filter)
     err = np.abs(k.law_M - ref) / np.maximum(1e-300, np.abs(ref).max(axis=1, keepdims=True))
     if np.max(err) > _LAW_RTOL:
@@ -391,27 +377,23 @@ def load_gains(path, expected_ts_s=None):
 
     expected_ts_s: if given, the file's ts_s must equal it.
     """
+    return load_gains_document(path, expected_ts_s)[1]
+
+
+def load_gains_document(path, expected_ts_s=None):
+    """-> (the file's document as read, its Gains): load_gains for a tool that also derives
+    another document from the file's (the host's baselines); the document has passed every check."""
     doc, data = fields.read_json(path, GainsError)
-    return gains_from_dict(doc, path, hashlib.sha256(data).hexdigest(), expected_ts_s)
+    return doc, gains_from_dict(doc, path, hashlib.sha256(data).hexdigest(), expected_ts_s)
 
 
 # ---------------------------------------------------------------------------------------------
-# The Kalman block (schema 2): the firmware's default estimator (tipbot_fw.kalman), SI units.
+# The Kalman block (schema 2): the firmware's default estimator (tipbot_fw.cores.kalman), SI units.
 KALMAN_KEYS = ('state_names', 'state_units', 'measurement_names', 'measurement_units', 'wheel_radius_m',
                'A', 'B', 'C', 'L', 'K', 'law', 'noise')
-_X_NAMES = ('d_r', 'd_l', 'th1', 'th2', 'th3', 'd_r_dot', 'd_l_dot', 'th1_dot', 'th2_dot', 'th3_dot')
-_X_UNITS = ('m', 'm', 'rad', 'rad', 'rad', 'm/s', 'm/s', 'rad/s', 'rad/s', 'rad/s')
-_W_NAMES = ('w_r', 'w_l', 'w_th2', 'w_th3')
-# the law's integrators of the wheel positions (tipbot_fw.kalman, "Integral action"), optional:
-# the last states of a Kalman block that has them
-INTEGRATOR_NAMES = ('z_r', 'z_l')
-
-
-def integrator_count(state_names):
-    """How many of the states are the law's integrators (the last ones): 0 or 2."""
-    return len(INTEGRATOR_NAMES) if tuple(state_names[-len(INTEGRATOR_NAMES):]) == INTEGRATOR_NAMES else 0
-
-_MEASUREMENTS = (('phi_r', 'rad'), ('phi_l', 'rad'), ('th2', 'rad'), ('th3', 'rad'), ('gyro', 'rad/s'))
+# its states: x (STATE_NAMES), the disturbances of some of DISTURBANCE_NAMES, GYRO_BIAS, and
+# optionally the law's integrators of the wheel positions (INTEGRATOR_NAMES; tipbot_fw.cores.kalman,
+# "Integral action"), the last states of a Kalman block that has them
 # The folded law must equal the fold of the block's matrices to this fraction of its row's
 # largest entry (the file has 12 significant digits; the fold sums a few dozen products).
 _LAW_RTOL = 1e-8
@@ -437,21 +419,20 @@ def _kalman_block(doc, f):
     nz = integrator_count(names) if isinstance(names, list) else 0
     nf = n - nz
     w = names[10:nf - 1]
-    if not (11 <= nf <= 15 and tuple(names[:10]) == _X_NAMES and names[nf - 1] == 'gyro_bias'
-            and all(v in _W_NAMES for v in w) and len(set(w)) == len(w)):
+    if not (11 <= nf <= 15 and tuple(names[:10]) == STATE_NAMES and names[nf - 1] == GYRO_BIAS
+            and all(v in DISTURBANCE_NAMES for v in w) and len(set(w)) == len(w)):
         f.fail('kalman.state_names', 'must be the 10 states, some of {}, gyro_bias and optionally {}, got {!r}'.format(
-            ', '.join(_W_NAMES), ', '.join(INTEGRATOR_NAMES), names))
-    units = list(_X_UNITS) + ['V'] * len(w) + ['rad/s'] + ['m s'] * nz
+            ', '.join(DISTURBANCE_NAMES), ', '.join(INTEGRATOR_NAMES), names))
+    units = list(STATE_UNITS) + ['V'] * len(w) + ['rad/s'] + ['m s'] * nz
     if doc['state_units'] != units:
         f.fail('kalman.state_units', 'must be {!r} (SI), got {!r}'.format(units, doc['state_units']))
     k.state_units = units
-    k.disturbance_inputs = [_W_NAMES.index(v) for v in w]
+    k.disturbance_inputs = [DISTURBANCE_NAMES.index(v) for v in w]
     k.n = n
     k.n_filter = nf
-    if doc['measurement_names'] != [m for m, _ in _MEASUREMENTS] or \
-            doc['measurement_units'] != [u for _, u in _MEASUREMENTS]:
+    if doc['measurement_names'] != list(MEASUREMENT_NAMES) or doc['measurement_units'] != list(MEASUREMENT_UNITS):
         f.fail('kalman.measurement_names', 'must be {} (units {})'.format(
-            [m for m, _ in _MEASUREMENTS], [u for _, u in _MEASUREMENTS]))
+            list(MEASUREMENT_NAMES), list(MEASUREMENT_UNITS)))
     k.wheel_radius_m = f.number('kalman.wheel_radius_m', doc['wheel_radius_m'], lo=0.005, hi=0.1, lo_open=False)
     shapes = (('A', n, n), ('B', n, 4), ('C', 5, n), ('L', n, 5), ('K', 4, n))
     for key, rows, cols in shapes:

@@ -5,7 +5,7 @@ run-up and its run-down, write an identify log.
 
 What it does, in order:
 
-1. finds the tacho motor on ``--port`` (python-ev3dev2, as tipbot_fw.ev3io does; any motor
+1. finds the tacho motor on ``--port`` (python-ev3dev2, as tipbot_fw.io.ev3dev does; any motor
    driver: large, medium or NXT), opens ``position``, ``duty_cycle_sp``, ``command`` and the
    battery's ``voltage_now`` once, and sets duty 0, ``stop_action`` coast, polarity normal;
 2. reads the battery and refuses to go on below ``limits.min_battery_v`` (config);
@@ -27,13 +27,13 @@ count), so the rows say as much as every read would: a count changed somewhere b
 start of each phase): the voltage applied is duty / 100 x battery voltage.
 
 Safety as in the balance session (tipbot_fw.session): SIGTERM, SIGHUP and Ctrl-C are turned
-into exceptions by tipbot_fw.safety.SignalGuard, and whatever ends the run, the motor is
+into exceptions by tipbot_fw.guard.safety.SignalGuard, and whatever ends the run, the motor is
 stopped first (``stop``), then the log is written with what was recorded. Exit codes are the
-CLI's (tipbot_fw.safety): 0 done, 1 bug, 2 invalid arguments or config, 3 no motor on the
+CLI's (tipbot_fw.guard.safety): 0 done, 1 bug, 2 invalid arguments or config, 3 no motor on the
 port, 4 refused (low battery, not confirmed), 5 a read or write failed, 130 Ctrl-C, 143
 SIGTERM/SIGHUP.
 
-The host fits the log: ``python -m hostsim identify LOG`` (hostsim/identify.py).
+The host fits the log: ``python -m hostsim identify LOG`` (hostsim/logs/identify.py).
 
 Python 3.5 + the standard library (python-ev3dev2 at start-up only).
 """
@@ -46,12 +46,14 @@ import time
 import numpy as np
 
 import tipbot_fw
-from tipbot_fw import ev3io, logfile
-from tipbot_fw.clock import MonotonicClock
-from tipbot_fw.config import MOTOR_ROLES, ConfigError, load_config
+from tipbot_fw.io import ev3dev
+from tipbot_fw.record import logfile
+from tipbot_fw.io.clock import MonotonicClock
+from tipbot_fw.config import ConfigError, load_config
+from tipbot_fw.vocabulary import MOTOR_ROLES
 from tipbot_fw.console import say
-from tipbot_fw.plausibility import check_battery
-from tipbot_fw.safety import (EXIT_DEVICES, EXIT_ERROR, EXIT_INTERRUPT, EXIT_INVALID, EXIT_OK,
+from tipbot_fw.guard.plausibility import check_battery
+from tipbot_fw.guard.safety import (EXIT_DEVICES, EXIT_ERROR, EXIT_INTERRUPT, EXIT_INVALID, EXIT_OK,
                               EXIT_REFUSED, DeviceFailure, LowBattery, SafetyStop, run_guarded)
 
 KIND = 'identify'
@@ -82,9 +84,9 @@ DEFAULTS = {
 _READ_BYTES = 32
 
 
-class SingleMotor(ev3io.SysfsDevices):
+class SingleMotor(ev3dev.SysfsDevices):
     """Raw access to one tacho motor and the battery: found with python-ev3dev2 (through
-    tipbot_fw.ev3io's survey), then file descriptors opened once, ``pread``/``pwrite`` at 0.
+    tipbot_fw.io.ev3dev's survey), then file descriptors opened once, ``pread``/``pwrite`` at 0.
 
     ``io``: open/pread/pwrite/close with the signatures of :mod:`os` (the default); tests pass
     hostsim's fake EV3 CountingIO. Ev3SetupError if there is no motor on the port or it cannot
@@ -92,8 +94,8 @@ class SingleMotor(ev3io.SysfsDevices):
     """
 
     def __init__(self, port, sysfs_root='/sys/class', io=os):
-        ev3io.SysfsDevices.__init__(self, io)
-        self.port = ev3io.short_port(port)
+        ev3dev.SysfsDevices.__init__(self, io)
+        self.port = ev3dev.short_port(port)
         self.pread = self._pread
         self.position_fd = self._duty_fd = self._cmd_fd = -1
         self.path, self.driver, self.counts_per_rot = find_motor(self.port, sysfs_root)
@@ -123,7 +125,7 @@ class SingleMotor(ev3io.SysfsDevices):
         try:
             self._pwrite(fd, data, 0)
         except OSError as e:
-            raise ev3io.Ev3WriteError(self.port, name, 'writing', e)
+            raise ev3dev.Ev3WriteError(self.port, name, 'writing', e)
 
     def run_direct(self, duty):
         """Duty (int percent) then ``run-direct``: the motor starts during the second write."""
@@ -147,16 +149,16 @@ class SingleMotor(ev3io.SysfsDevices):
 def find_motor(port, sysfs_root='/sys/class'):
     """-> (device dir, driver_name, count_per_rot) of the tacho motor on ``port``.
     Ev3SetupError if there is none (the message lists the ports that have one)."""
-    with ev3io.under_root(sysfs_root) as ev3dev2:
+    with ev3dev.under_root(sysfs_root) as ev3dev2:
         try:
-            found = ev3io.survey(ev3dev2, 'tacho-motor', 'motor*')
+            found = ev3dev.survey(ev3dev2, 'tacho-motor', 'motor*')
         except OSError as e:
-            raise ev3io.Ev3SetupError(['{}: cannot list tacho motors: {}'.format(sysfs_root, e)])
+            raise ev3dev.Ev3SetupError(['{}: cannot list tacho motors: {}'.format(sysfs_root, e)])
         if port not in found:
-            raise ev3io.Ev3SetupError(['port {}: no motor found (tacho motors on: {})'.format(
+            raise ev3dev.Ev3SetupError(['port {}: no motor found (tacho motors on: {})'.format(
                 port, ', '.join(sorted(found)) or 'none')])
         path, driver = found[port]
-        return path, driver, ev3io.count_per_rot(ev3dev2, path)
+        return path, driver, ev3dev.count_per_rot(ev3dev2, path)
 
 
 class Recorder(object):
@@ -264,7 +266,7 @@ class Recorder(object):
 def write_identify_log(path, header, rows):
     """Write an identify log: the run log's container (docs/log-format.md) with COLUMNS as its
     columns and ``kind: "identify"`` in its header. rows: a flat sequence of doubles, row-major.
-    tipbot_fw.logfile.read_log reads it."""
+    tipbot_fw.record.logfile.read_log reads it."""
     header = dict(header)
     header['kind'] = KIND
     body = np.frombuffer(array.array('d', rows).tobytes(), dtype='=f8')
@@ -425,7 +427,7 @@ def add_arguments(sp):
 
 def _role_of(config, port):
     for role in MOTOR_ROLES:
-        if ev3io.short_port(config['ports'][role]) == port:
+        if ev3dev.short_port(config['ports'][role]) == port:
             return role
     return None
 

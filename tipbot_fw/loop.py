@@ -1,7 +1,7 @@
 """The fixed-period control loop: timing, the tick pipeline, housekeeping, overrun policy.
 
 Tick pipeline: read raw -> plausibility of the readings -> heartbeat -> the core (estimate,
-control, saturation, duty, log row: tipbot_fw.core) -> write duties -> the row's time columns.
+control, saturation, duty, log row: tipbot_fw.cores.core) -> write duties -> the row's time columns.
 A control tick does exactly one read_raw (5 sysfs reads) and one write_duties (at most 4 writes).
 
 Timing: tick k is released at t0 + k * period, the deadline advanced by exactly one period each
@@ -20,8 +20,8 @@ ticks and is stopped within a window. The bookkeeping runs only in a late tick: 
 pays one comparison, as before.
 
 Each tick stores its index in the heartbeat page the supervisor watches (one store, no system
-call: tipbot_fw.heartbeat), and compares the readings with what the hardware can report
-(tipbot_fw.plausibility: a gyro rate beyond +-440 deg/s, an encoder jump beyond the motor's
+call: tipbot_fw.guard.heartbeat), and compares the readings with what the hardware can report
+(tipbot_fw.guard.plausibility: a gyro rate beyond +-440 deg/s, an encoder jump beyond the motor's
 reach at the nominal period; only when that cheap test fails is the exact one, with the time
 since the previous read, made). That check is also what keeps the wheels' count changes within
 the core's max_count_step (the Kalman core's fixed-point range): the core does not check again.
@@ -30,7 +30,7 @@ Between ticks, after the tick's writes and its overrun bookkeeping, in this orde
 rows, written to the file in whole chunks (logfile.CHUNK_ROWS, on the grid of chunks: the slots
 of the file's ring of a long run's last rows; no fsync in the loop); the battery
 (about once a second: its plausibility, and whether the supervisor is still there); the side
-task (tipbot_fw.slack: lights, tones, telemetry). Each runs in the first tick, from the one it
+task (tipbot_fw.side_tasks: lights, tones, telemetry). Each runs in the first tick, from the one it
 is due in, that leaves at least SLACK_S (SLACK_FRACTION of a shorter period) before the next
 release, so that none of them makes a tick late. What cannot wait any longer runs at once: the
 rows when the ring in memory is about to be overwritten, the battery when it is a whole battery
@@ -44,12 +44,13 @@ Motors are not stopped here: the caller (tipbot_fw.session) stops them in its fi
 import collections
 import gc
 
-from tipbot_fw import logfile
-from tipbot_fw.heartbeat import NOT_SUPERVISED
-from tipbot_fw.realtime import ask_fifo
-from tipbot_fw.plausibility import GYRO_MAX_DPS, EncoderBound, check_battery
 from tipbot_fw.config import MAX_STALL_S
-from tipbot_fw.safety import DeviceFailure, FallDetected, JointLimit, OverrunLimit, Terminated, watchdog_stop
+from tipbot_fw.guard.heartbeat import NOT_SUPERVISED
+from tipbot_fw.guard.plausibility import GYRO_MAX_DPS, EncoderBound, check_battery
+from tipbot_fw.guard.realtime import ask_fifo
+from tipbot_fw.guard.safety import DeviceFailure, FallDetected, JointLimit, OverrunLimit, Terminated, watchdog_stop
+from tipbot_fw.record import logfile
+from tipbot_fw.vocabulary import FLAG_BITS, SKIP_MAX, SKIP_SHIFT, WOUND_DOWN
 
 # What a tick must leave before the next release for the work between ticks (a chunk of log rows
 # is a copy, a CRC-32 and a pwrite; the battery one sysfs read, 0.3-0.45 ms on the brick), or
@@ -61,14 +62,12 @@ SLACK_FRACTION = 0.3
 # a quarter of the realistic brick's ticks leave SLACK_S, and cues came up to 0.14 s late.
 SIDE_WAIT_S = 0.05
 # How often the law's integrators are kept within their limit (KalmanCore.wind_down): the
-# fixed-point range of the integrators is what they can gain in this long (tipbot_fw.kalman,
+# fixed-point range of the integrators is what they can gain in this long (tipbot_fw.cores.kalman,
 # "Integral action"), whatever the battery's reading period
 WIND_DOWN_S = 1.0
 
-OVERRUN = logfile.FLAG_BITS['overrun']
-SKIP_SHIFT, SKIP_MAX = logfile.SKIP_SHIFT, logfile.SKIP_MAX
-WOUND_DOWN = logfile.WOUND_DOWN
-FALL = logfile.FLAG_BITS['fall']
+OVERRUN = FLAG_BITS['overrun']
+FALL = FLAG_BITS['fall']
 
 
 def _NEVER(k):
@@ -109,8 +108,8 @@ class ControlLoop(object):
     battery_v: the voltage read before start (re-read every battery_period_s); duration_s:
     stop after that many periods' worth of ticks (None: run until stopped); realtime_priority:
     SCHED_FIFO priority to ask for during the run (0: don't); heartbeat: the supervisor's page
-    (tipbot_fw.heartbeat); encoder_bound: a plausibility.EncoderBound (None: only the gyro's
-    bound is checked); side: a side task (tipbot_fw.slack) or None, settable until run();
+    (tipbot_fw.guard.heartbeat); encoder_bound: a plausibility.EncoderBound (None: only the gyro's
+    bound is checked); side: a side task (tipbot_fw.side_tasks) or None, settable until run();
     overrun_window_s, max_lost_s, max_stall_s: the overrun stop (the module's docstring);
     on_scheduling: called with one line saying which scheduling the run got, before the first tick.
     """
@@ -187,7 +186,10 @@ class ControlLoop(object):
                                late_s * 1e3, k, missed, self.max_stall_s))
 
     def _run(self, stats):
-        # Locals: attribute and global lookups cost real time on the brick.
+        """The ticks: the hot path, written out with locals (attribute and global lookups cost
+        real time on the brick); what a late tick and the housekeeping between ticks do are the
+        cold methods _late_tick and _housekeeping (the side task, every tick for a remote, stays
+        here)."""
         dev = self.devices
         read = dev.read_raw
         write = dev.write_duties
@@ -199,14 +201,8 @@ class ControlLoop(object):
         cap = log.capacity
         pack_times = logfile.TIMES.pack_into
         row_bytes = log.row_bytes
-        flags_col = log.rows.flags_index
         period = self.period_s
         n_ticks = self.n_ticks
-        battery_every = self.battery_every
-        window = self.overrun_window_s
-        max_lost = self.max_lost_s
-        max_stall = self.max_stall_s
-        skips = collections.deque()     # (release, seconds) of the periods skipped within the window
         hbt = self.heartbeat
         beat = hbt.words if hbt.words is not None else [0] * 8   # the same store either way
         bound = (self.encoder_bound or EncoderBound(None, None, period)).with_max_step(core.max_count_step)
@@ -214,20 +210,15 @@ class ControlLoop(object):
         j2_max = float('inf')           # tick 0 has no previous reading
         gyro_max = GYRO_MAX_DPS
         pa = pb = pc = pd = 0
-        # the work between ticks: the tick each part is next due in, and the first tick with any
-        flush = log.flush
-        chunk = log.chunk_rows
-        next_flush = chunk
-        urgent = log.capacity - chunk
-        next_battery = battery_every
-        wind_every = max(1, int(round(WIND_DOWN_S / period)))
-        next_wind = wind_every
+        # the work between ticks: the side task's (every tick for a remote: here, as locals) and the
+        # housekeeping's (the log's chunks, the battery, the integrators: a method), each due in its tick
+        chores = self._plan_housekeeping()
         side = self.side
         side_due = 1
         if side is None:
             side, side_due = _NEVER, _NEVER(0)
-        due = min(next_flush, next_battery, side_due, next_wind)
-        min_slack = min(SLACK_S, SLACK_FRACTION * period)
+        due = chores if chores < side_due else side_due
+        min_slack = self._min_slack
         side_wait = max(1, int(round(SIDE_WAIT_S / period)))
         stats.battery_v = check_battery(self.battery_v)
         core.set_battery(self.battery_v)
@@ -270,62 +261,105 @@ class ControlLoop(object):
                 release += period
                 late = now() - release
                 if late > 0.0:
-                    missed = int(late / period)
-                    log.mem[(k - 1) % cap, flags_col] += OVERRUN + (min(missed, SKIP_MAX) << SKIP_SHIFT)
-                    stats.overruns += 1
-                    stats.skipped_periods += missed
-                    consecutive += 1
-                    if consecutive > stats.max_consecutive_overruns:
-                        stats.max_consecutive_overruns = consecutive
-                    while skips and skips[0][0] <= release - window:
-                        skips.popleft()
-                    lost = longest = late
-                    for _, skipped_s in skips:
-                        lost += skipped_s
-                        if skipped_s > longest:
-                            longest = skipped_s
-                    if late > max_stall:
-                        self._stalled(k - 1, late, missed)
-                    if lost - longest > stats.max_lost_s:
-                        stats.max_lost_s = lost - longest
-                    if lost - longest > max_lost:
-                        self._behind(k - 1, lost, late, longest)
-                    if missed:
-                        release += missed * period
-                        skips.append((release, missed * period))
-                        core.skip(missed)       # the model through the periods missed, duties held
+                    release, consecutive = self._late_tick(k, late, release, consecutive)
                 else:
                     consecutive = 0
                 if k >= due:        # work between ticks: one comparison a tick until some is due
-                    if k >= next_wind:      # the integrators' anti-windup, once a second, before the
-                        if core.wind_down():        # row it flags can go to the file
-                            log.mem[(k - 1) % cap, flags_col] += WOUND_DOWN
-                        next_wind = k - k % wind_every + wind_every
-                    if k >= next_flush and (release - now() > min_slack or k - log.flushed >= urgent):
-                        flush(k)                        # whole chunks: the file's unit
-                        next_flush = k - k % chunk + chunk
-                    if k >= next_battery and (release - now() > min_slack or k - next_battery >= battery_every):
-                        try:
-                            bv = dev.read_battery_v()
-                        except (OSError, ValueError) as e:
-                            raise DeviceFailure('battery read failed after tick {}: {}'.format(k - 1, e))
-                        check_battery(bv, stats.battery_v, 'after tick {}'.format(k - 1))
-                        stats.battery_reads += 1
-                        stats.battery_v = bv
-                        if bv != core.battery_v:
-                            core.set_battery(bv)
-                            hbt.publish_rail(core.dlim)
-                        if not hbt.supervisor_alive():
-                            raise Terminated('the supervisor (pid {}) is gone: the controller stopped the motors '
-                                             'itself'.format(hbt.supervisor_pid), 'supervisor_gone')
-                        next_battery = k - k % battery_every + battery_every     # on the grid
+                    if k >= chores:
+                        chores = self._housekeeping(k, release)
                     if k >= side_due and (release - now() > min_slack or k - side_due >= side_wait):
                         side_due = side(k)
-                    due = next_flush if next_flush < next_battery else next_battery
-                    if side_due < due:
-                        due = side_due
-                    if next_wind < due:
-                        due = next_wind
+                    due = chores if chores < side_due else side_due
                 sleep_until(release)   # returns at once when late
         finally:
             log.count = stats.ticks = k
+
+    def _late_tick(self, k, late, release, consecutive):
+        """Tick k - 1 ended `late` s after the next release: its row's flags (overrun, the whole
+        periods missed), the counts, the overrun stop (the module's docstring), and the core
+        predicted through the periods missed. -> (the next release, the overruns in a row)."""
+        period = self.period_s
+        stats = self.stats
+        log = self.log
+        skips = self._skips
+        release_was = release
+        missed = int(late / period)
+        log.mem[(k - 1) % log.capacity, log.rows.flags_index] += OVERRUN + (min(missed, SKIP_MAX) << SKIP_SHIFT)
+        stats.overruns += 1
+        stats.skipped_periods += missed
+        consecutive += 1
+        if consecutive > stats.max_consecutive_overruns:
+            stats.max_consecutive_overruns = consecutive
+        while skips and skips[0][0] <= release_was - self.overrun_window_s:
+            skips.popleft()
+        lost = longest = late
+        for _, skipped_s in skips:
+            lost += skipped_s
+            if skipped_s > longest:
+                longest = skipped_s
+        if late > self.max_stall_s:
+            self._stalled(k - 1, late, missed)
+        if lost - longest > stats.max_lost_s:
+            stats.max_lost_s = lost - longest
+        if lost - longest > self.max_lost_s:
+            self._behind(k - 1, lost, late, longest)
+        if missed:
+            release += missed * period
+            skips.append((release, missed * period))
+            self.core.skip(missed)       # the model through the periods missed, duties held
+        return release, consecutive
+
+    def _plan_housekeeping(self):
+        """The tick each part of the housekeeping between ticks (the module's docstring) is first
+        due in -> the first tick with any."""
+        period = self.period_s
+        log = self.log
+        self._skips = collections.deque()   # (release, seconds) of the periods skipped within the window
+        self._next_flush = log.chunk_rows
+        self._urgent = log.capacity - log.chunk_rows
+        self._next_battery = self.battery_every
+        self._wind_every = max(1, int(round(WIND_DOWN_S / period)))
+        self._next_wind = self._wind_every
+        self._min_slack = min(SLACK_S, SLACK_FRACTION * period)
+        return min(self._next_flush, self._next_battery, self._next_wind)
+
+    def _housekeeping(self, k, release):
+        """After tick k - 1's writes, the housekeeping that is due, each part in a tick that
+        leaves slack before `release` or at once when it cannot wait (the module's docstring):
+        the integrators' anti-windup, the log's chunks, the battery -> the next tick with any due."""
+        log = self.log
+        core = self.core
+        now = self.clock.now
+        min_slack = self._min_slack
+        if k >= self._next_wind:        # the integrators' anti-windup, once a second, before the
+            if core.wind_down():            # row it flags can go to the file
+                log.mem[(k - 1) % log.capacity, log.rows.flags_index] += WOUND_DOWN
+            self._next_wind = k - k % self._wind_every + self._wind_every
+        if k >= self._next_flush and (release - now() > min_slack or k - log.flushed >= self._urgent):
+            log.flush(k)                        # whole chunks: the file's unit
+            self._next_flush = k - k % log.chunk_rows + log.chunk_rows
+        battery_every = self.battery_every
+        if k >= self._next_battery and (release - now() > min_slack or k - self._next_battery >= battery_every):
+            self._read_battery(k)
+            self._next_battery = k - k % battery_every + battery_every     # on the grid
+        return min(self._next_flush, self._next_battery, self._next_wind)
+
+    def _read_battery(self, k):
+        """The battery's reading after tick k - 1: plausible, the law rescaled when it changed;
+        and whether the supervisor is still there."""
+        stats = self.stats
+        core = self.core
+        hbt = self.heartbeat
+        try:
+            bv = self.devices.read_battery_v()
+        except (OSError, ValueError) as e:
+            raise DeviceFailure('battery read failed after tick {}: {}'.format(k - 1, e))
+        check_battery(bv, stats.battery_v, 'after tick {}'.format(k - 1))
+        stats.battery_reads += 1
+        stats.battery_v = bv
+        if bv != core.battery_v:
+            core.set_battery(bv)
+            hbt.publish_rail(core.dlim)
+        if not hbt.supervisor_alive():
+            raise Terminated('the supervisor (pid {}) is gone: the controller stopped the motors '
+                             'itself'.format(hbt.supervisor_pid), 'supervisor_gone')

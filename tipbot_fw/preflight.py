@@ -41,7 +41,7 @@ def check_block(f, block):
 
 
 def _read(path, kind):
-    from tipbot_fw import logfile
+    from tipbot_fw.record import logfile
     try:
         header, rows = logfile.read_log(path)
     except (OSError, ValueError) as e:      # LogFormatError is a ValueError

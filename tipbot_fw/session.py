@@ -3,7 +3,7 @@
 Whatever ends the run (duration reached, fall, a signal, device failure, overruns, a stall seen
 by the supervisor, a bug) the motors are stopped first, then the log is finished, then the
 reason is reported. The log is open before the devices are touched, and its rows reach the
-file while the robot runs (tipbot_fw.logfile): its header at the start, the calibration and the
+file while the robot runs (tipbot_fw.record.logfile): its header at the start, the calibration and the
 encoder zeros as they are learnt, the rows in chunks, the end of the run last. The file has a
 fixed size (config log_max_rows): a longer run keeps its first log_head_rows rows and its last
 ones (logfile.keep_plan), and the run's last line names the ticks between them, not kept.
@@ -15,15 +15,17 @@ import time
 import numpy as np
 
 import tipbot_fw
-from tipbot_fw import logfile, slack
+from tipbot_fw.record import logfile
+from tipbot_fw import side_tasks
 from tipbot_fw.calibration import calibrate_gyro
-from tipbot_fw.core import make_core, row_layout
+from tipbot_fw.cores.core import make_core, row_layout
 from tipbot_fw.cues import OwnerCues
-from tipbot_fw.heartbeat import NOT_SUPERVISED
+from tipbot_fw.guard.heartbeat import NOT_SUPERVISED
 from tipbot_fw.loop import ControlLoop
 from tipbot_fw.console import say
-from tipbot_fw.plausibility import EncoderBound, check_battery
-from tipbot_fw.safety import EXIT_ERROR, EXIT_OK, DeviceFailure, LowBattery, outcome, run_guarded
+from tipbot_fw.guard.plausibility import EncoderBound, check_battery
+from tipbot_fw.guard.safety import EXIT_ERROR, EXIT_OK, DeviceFailure, LowBattery, outcome, run_guarded
+from tipbot_fw import vocabulary
 
 
 def base_header(gains, config, duration_s):
@@ -43,7 +45,7 @@ def base_header(gains, config, duration_s):
         'ts_s': gains.ts_s,
         'config': config,
         'duration_s_requested': duration_s,
-        'flag_bits': logfile.FLAG_BITS,
+        'flag_bits': vocabulary.FLAG_BITS,
     }
     header.update(row_layout(gains, config).header())
     return header
@@ -74,17 +76,17 @@ def run_session(devices, gains, config, clock, log_path=None, duration_s=None,
                 telemetry=None, course=None, remote=None):
     """Balance until duration_s (None: until stopped). -> (exit code, log header dict).
 
-    Never raises; devices.stop_all() is called on every exit (tipbot_fw.safety.run_guarded).
+    Never raises; devices.stop_all() is called on every exit (tipbot_fw.guard.safety.run_guarded).
     The log: ``log``, a LogWriter the caller opened (the command line opens it before the
     devices), or one opened here at log_path; None of either: no log. ``cues``
     (tipbot_fw.cues.OwnerCues by default) tells the owner to hold the robot, to let go, that it
-    balances and why it stopped; ``telemetry`` (a tipbot_fw.telemetry.TelemetrySender or None)
-    sends the ticks' rows. Both work in the loop's slack (tipbot_fw.slack). ``heartbeat``: the
+    balances and why it stopped; ``telemetry`` (a tipbot_fw.record.telemetry.TelemetrySender or None)
+    sends the ticks' rows. Both work in the loop's slack (tipbot_fw.side_tasks). ``heartbeat``: the
     supervisor's page, armed during the calibration and from the loop's first tick until the
     motors are stopped. ``guard``: the SignalGuard already installed (tipbot_fw.cli), or None.
-    ``course``: the segments of tipbot_fw.course (checked against the gains' limits) to drive
+    ``course``: the segments of tipbot_fw.drive.course (checked against the gains' limits) to drive
     from the let-go cue, or None: the robot balances where it was let go. ``remote``: a
-    tipbot_fw.remote.Receiver whose commands it drives by (the caller closes it), or None.
+    tipbot_fw.drive.remote.Receiver whose commands it drives by (the caller closes it), or None.
     """
     cues = OwnerCues() if cues is None else cues
     if realtime_priority is None:
@@ -120,11 +122,11 @@ def run_session(devices, gains, config, clock, log_path=None, duration_s=None,
         core = run['core'] = make_core(gains, config, devices.counts_per_rot, layout)
         follower = None
         if course is not None:      # before the calibration: nothing is watched or driven yet
-            from tipbot_fw.pathfollow import follow_course  # here: a run that stands keeps it out of memory
+            from tipbot_fw.drive.pathfollow import follow_course  # here: a run that stands keeps it out of memory
             follower = follow_course(gains, core, course)
         live = None
         if remote is not None:
-            from tipbot_fw.remote import live_plan, remote_side
+            from tipbot_fw.drive.remote import live_plan, remote_side
             live = live_plan(gains, core)
         try:
             bv = devices.read_battery_v()
@@ -138,9 +140,13 @@ def run_session(devices, gains, config, clock, log_path=None, duration_s=None,
         cal_config = config['gyro_calibration']
         cues.hold_still(cal_config['settle_s'] + cal_config['duration_s'])
         heartbeat.arm()
+        t_start = clock.now()
         cal = calibrate_gyro(devices, BeatingClock(clock, heartbeat), gains.ts_s, cal_config)
         heartbeat.disarm()      # until the loop's first tick (ControlLoop.run): no motor driven yet
-        learnt({'calibration': cal.as_dict()})
+        # the session's own timing (the clock's seconds): the calibration's first and last
+        # samples, the loop's first tick (at the end); a simulated hand lets go at the last sample
+        run['timing'] = {'calibration_start_s': t_start, 'calibration_end_s': clock.now()}
+        learnt({'calibration': cal.as_dict(), 'timing': dict(run['timing'])})
         core.set_gyro_bias(cal.gyro_bias_dps)
         rows.first_info = core.header       # the encoder zeros and the start estimate, with the first rows
         run['loop'] = ControlLoop(devices, core, clock, rows, gains.ts_s, bv,
@@ -151,7 +157,7 @@ def run_session(devices, gains, config, clock, log_path=None, duration_s=None,
                                   heartbeat=heartbeat, on_scheduling=say,
                                   encoder_bound=EncoderBound(config, devices.counts_per_rot, gains.ts_s))
         cues.let_go()
-        run['loop'].side = slack.combine(   # after let_go: the rest of its melody plays in the loop
+        run['loop'].side = side_tasks.combine(   # after let_go: the rest of its melody plays in the loop
             cues.in_loop(run['loop'], lim['warn_battery_v']),
             telemetry.attach(rows, run['loop'].stats, core) if telemetry else None,
             remote_side(remote, live, gains.ts_s) if live is not None else None,
@@ -170,6 +176,10 @@ def run_session(devices, gains, config, clock, log_path=None, duration_s=None,
             end.update(core.header())
         if 'loop' in run:
             end['loop'] = run['loop'].stats.as_dict()
+            if run['loop'].stats.ticks:     # the clock at the first tick's start (the log's log_t0)
+                run['timing']['loop_start_s'] = rows.t0
+        if 'timing' in run:
+            end['timing'] = run['timing']
         if telemetry is not None:
             end['telemetry'] = telemetry.summary()
         rows.flush()

@@ -8,7 +8,7 @@ motor of the configured ports itself, directly through sysfs (``duty_cycle_sp`` 
 * the controller ends, however it ends (SIGKILL, a segfault, the OOM killer, an exit): the
   controller holds the write end of a pipe, so its end is an end of file the supervisor's
   ``select`` sees at once;
-* the controller's heartbeat stands still while it is armed (tipbot_fw.heartbeat: the control
+* the controller's heartbeat stands still while it is armed (tipbot_fw.guard.heartbeat: the control
   loop stores its tick index in a shared page every tick, no system call) for longer than the
   configuration's ``limits.max_stall_s`` (150 ms): the longest single stall the robot is
   designed to ride out (docs/architecture.md), or for longer than ``--timeout-ms`` (25 ms, 5 periods)
@@ -16,7 +16,7 @@ motor of the configured ports itself, directly through sysfs (``duty_cycle_sp`` 
   froze while fighting a fall, or a runaway). A frozen controller's H-bridges keep its last
   duties: a delayed version of the law, which a balancing robot rides out for a while, where
   stopping its motors would be a fall; the controller, back from the stall, predicts through
-  the periods it missed (tipbot_fw.kalman: skip). Past that hold the supervisor stops the
+  the periods it missed (tipbot_fw.cores.kalman: skip). Past that hold the supervisor stops the
   motors, marks the page and sends SIGTERM and SIGCONT: the
   controller, if it ever runs again, finds its motors in ``stop`` (a motor whose command is
   ``stop`` ignores ``duty_cycle_sp``, the only attribute the controller writes during a run),
@@ -80,10 +80,11 @@ import select  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 
-from tipbot_fw import heartbeat as hb  # noqa: E402
-from tipbot_fw.config import MOTOR_ROLES, ConfigError, default_sysfs_root, load_config  # noqa: E402
-from tipbot_fw.realtime import ask_fifo, refused  # noqa: E402
-from tipbot_fw.safety import EXIT_CONTROLLER_DIED, EXIT_INVALID, termination_signals  # noqa: E402
+from tipbot_fw.guard import heartbeat as hb  # noqa: E402
+from tipbot_fw.config import ConfigError, default_sysfs_root, load_config  # noqa: E402
+from tipbot_fw.vocabulary import MOTOR_ROLES
+from tipbot_fw.guard.realtime import ask_fifo, refused  # noqa: E402
+from tipbot_fw.guard.safety import EXIT_CONTROLLER_DIED, EXIT_INVALID, signal_name, termination_signals  # noqa: E402
 
 TIMEOUT_S = 0.025
 POLL_S = 0.010
@@ -502,7 +503,7 @@ def show_stop(argv, sysfs_root, reason, code):
         return
     try:
         from tipbot_fw.cues import OwnerCues
-        from tipbot_fw.feedback import BrickSignals
+        from tipbot_fw.io.lights_speaker import BrickSignals
         cues = OwnerCues(brick=BrickSignals(sysfs_root))
         try:
             cues.stopped(reason, code)
@@ -516,12 +517,6 @@ def _report(problems, when, who='supervisor'):
     for p in problems:
         say('stopping the motors {}: {}'.format(when, p), who)
 
-
-def signal_name(signum):
-    for name in dir(signal):
-        if name.startswith('SIG') and not name.startswith('SIG_') and getattr(signal, name) == signum:
-            return name
-    return 'signal {}'.format(signum)
 
 
 def bench(polls):

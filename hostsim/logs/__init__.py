@@ -2,11 +2,12 @@
 export to CSV (export) and live telemetry (watch)."""
 import os
 
-from tipbot_fw import fields, logfile
+from tipbot_fw import fields
+from tipbot_fw.record import logfile
 
 
 def read_log(path, error):
-    """(header, rows, column names) of a tipbot log (tipbot_fw.logfile); error('<path>: ...')
+    """(header, rows, column names) of a tipbot log (tipbot_fw.record.logfile); error('<path>: ...')
     when it is missing, unreadable or corrupt."""
     if not os.path.isfile(path):
         raise error("%s: no such log file" % path)

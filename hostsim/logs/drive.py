@@ -6,7 +6,7 @@
 Keys (arrows or WASD): up / w faster forward, down / s slower (then backwards), left / a turn
 left, right / d turn right, space: stop (speed and turn to zero), q: quit. Each press changes the
 speed by SPEED_STEP_MPS or the turn by YAW_STEP_DPS; the firmware clips both to its gains' limits
-and ramps to them (tipbot_fw.remote). The command is sent RATE_HZ times a second with a rising
+and ramps to them (tipbot_fw.drive.remote). The command is sent RATE_HZ times a second with a rising
 sequence number; once this program stops sending, the robot comes to rest within 0.3 s and keeps
 balancing. With COMMAND (make drive: the run on the brick), q and Ctrl-C end it, as Ctrl-C ends a
 `make run`: the firmware stops the motors and writes its log.
@@ -25,7 +25,7 @@ import time
 
 import hostsim
 from hostsim.errors import TipbotError
-from tipbot_fw.remote import COMMAND, MAGIC
+from tipbot_fw.drive.remote import COMMAND, MAGIC
 
 DEFAULT_PORT = 5006
 RATE_HZ = 20.0

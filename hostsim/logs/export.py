@@ -10,7 +10,7 @@ calibration, why it stopped). Every column name carries its unit (``y_th1_rad``,
 motor identification) exports: the columns are the log's own (docs/log-format.md). A balance
 run of the Kalman core, whose rows hold raw readings and the filter's carried state, gets the
 physical columns of the detector's logs after its own, rebuilt as the replay rebuilds them
-(tipbot_fw.replay.signals, with the gains the run used, found as `hostsim replay` finds them,
+(tipbot_fw.record.replay.signals, with the gains the run used, found as `hostsim replay` finds them,
 or --gains): the estimate ``xt_*`` (x^), the disturbance estimate ``w_*``, the applied inputs
 ``u_*``, the law's output before rounding and saturation ``u_cmd_*`` and the filter's gyro bias
 ``gyro_bias`` (deg/s, as the sensor reads). Exit status 0, or 2 with a one-line message when
@@ -27,8 +27,10 @@ import numpy as np
 
 from hostsim.errors import TipbotError
 from hostsim.logs import read_log
-from tipbot_fw import logfile, replay as fw_replay
-from tipbot_fw.gains import ACTUATED_INPUTS, GainsError, load_gains
+from tipbot_fw.record import replay as fw_replay
+from tipbot_fw.gains import GainsError, load_gains
+from tipbot_fw.vocabulary import ACTUATED_INPUTS
+from tipbot_fw import vocabulary
 
 # unit -> what a column name gets appended (None: nothing)
 UNIT_SUFFIX = {"m/s": "m_per_s", "rad/s": "rad_per_s", "deg/s": "deg_per_s", "%": "pct", "bits": None, "": None}
@@ -67,8 +69,8 @@ def format_value(v):
 
 # The physical columns a Kalman log gets (the detector's file columns of the same names), of the
 # four motors' inputs (link 1 has none: its columns would always read 0)
-MOTOR_INPUTS = [n for i, n in enumerate(logfile.INPUT_NAMES) if i in ACTUATED_INPUTS]
-PHYSICAL = ([("xt_" + n, u) for n, u in zip(logfile.STATE_NAMES, logfile.STATE_UNITS)]
+MOTOR_INPUTS = [n for i, n in enumerate(vocabulary.INPUTS) if i in ACTUATED_INPUTS]
+PHYSICAL = ([("xt_" + n, u) for n, u in zip(vocabulary.STATE_NAMES, vocabulary.STATE_UNITS)]
             + [(p + n, "V") for p in ("w_", "u_", "u_cmd_") for n in MOTOR_INPUTS] + [("gyro_bias", "deg/s")])
 
 
@@ -85,13 +87,13 @@ def physical_columns(log_path, header, rows, gains_path=None):
                           % (log_path, str(header["gains"]["sha256"])[:16]))
     try:
         sig = fw_replay.signals(header, rows, load_gains(path))
-        bias_dps = sig["gyro_bias"] * (180.0 / np.pi) * header["config"]["gyro_sign"]
+        bias_dps = sig.gyro_bias * (180.0 / np.pi) * header["config"]["gyro_sign"]
     except GainsError as e:
         raise ExportError(str(e))
     except (KeyError, TypeError, ValueError, IndexError) as e:
         raise ExportError("%s: a header this version cannot interpret: %s: %s" % (log_path, type(e).__name__, e))
     act = list(ACTUATED_INPUTS)
-    return PHYSICAL, np.hstack([sig["x_hat"], sig["w_hat"][:, act], sig["u"][:, act], sig["u_cmd"][:, act],
+    return PHYSICAL, np.hstack([sig.x_hat, sig.w_hat[:, act], sig.u[:, act], sig.u_cmd[:, act],
                                 bias_dps[:, None]])
 
 

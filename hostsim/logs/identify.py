@@ -85,7 +85,7 @@ from hostsim.model.params import DEFAULT_PARAMS_PATH, MOTOR_FIELDS, MOTOR_ROLES,
 from hostsim.paths import out_dir
 from tipbot_fw import fields
 from tipbot_fw import identify as fw_identify
-from tipbot_fw.plausibility import BATTERY_MAX_V, BATTERY_MIN_V
+from tipbot_fw.guard.plausibility import BATTERY_MAX_V, BATTERY_MIN_V
 
 DEFAULT_OUT = out_dir("identify")
 DEG = math.pi / 180.0

@@ -4,7 +4,7 @@
     (also: make replay LOG=... [GAINS=...])
 
 The logged raw readings (encoder counts, gyro angle and rate, battery voltage) go through
-tipbot_fw.replay, i.e. the very core the robot ran (tipbot_fw.core: the Kalman filter, or the
+tipbot_fw.record.replay, i.e. the very core the robot ran (tipbot_fw.cores.core: the Kalman filter, or the
 paper's detector), and what comes out is compared with what the robot logged:
 
 * with the gains the robot ran (found by the sha256 the log records: --logged-gains, then
@@ -33,23 +33,27 @@ import hostsim
 import numpy as np
 
 import tipbot_fw
-from tipbot_fw import logfile
-from tipbot_fw import replay as fw_replay
+from tipbot_fw.record import logfile
+from tipbot_fw.record import replay as fw_replay
 from tipbot_fw import fields
 from tipbot_fw.config import ConfigError, config_from_overrides
-from tipbot_fw.gains import ACTUATED_INPUTS, SCALAR_BOUNDS, GainsError, load_gains
-from tipbot_fw.plausibility import BATTERY_MAX_V, BATTERY_MIN_V
+from tipbot_fw.gains import SCALAR_BOUNDS, GainsError, load_gains
+from tipbot_fw.vocabulary import ACTUATED_INPUTS
+from tipbot_fw.guard.plausibility import BATTERY_MAX_V, BATTERY_MIN_V
 
 from hostsim.errors import TipbotError
 from hostsim.logs import read_log
 from hostsim.paths import GAINS_DIR, out_dir
+from tipbot_fw import vocabulary
+from tipbot_fw.cores import kalman_rows
+from tipbot_fw.cores.detector_rows import DetectorRows
 
 DEFAULT_OUT = out_dir("replay")
 DEFAULT_TOL = 1e-9
 # Header fields a replay needs (docs/log-format.md); a log without them is from another version.
 REQUIRED_HEADER = ("gains", "config", "calibration", "counts_per_rot", "first_tick", "ts_s", "estimator")
 # The gains schema this firmware's cores read; a log recorded with another cannot be replayed here.
-from tipbot_fw.gains import SCHEMA_VERSION as GAINS_SCHEMA  # noqa: E402
+from tipbot_fw.vocabulary import GAINS_SCHEMA_VERSION as GAINS_SCHEMA  # noqa: E402
 
 
 class ReplayError(TipbotError):
@@ -141,13 +145,13 @@ def gap_notes(header):
 def expected_columns(header):
     """The body columns of a run log of this firmware for the header's estimator."""
     if header.get("estimator") == "detector":
-        return list(logfile.COLUMN_NAMES)
+        return list(DetectorRows.column_names)
     names, units = header.get("state_names"), header.get("state_units")
     if not isinstance(names, list) or not isinstance(units, list):
         return []
-    columns = [c[0] for c in logfile.kalman_columns(names, units)]
+    columns = [c[0] for c in kalman_rows.kalman_columns(names, units)]
     if "reference" in header:       # the drive reference (a firmware before it logged none)
-        columns += [c[0] for c in logfile.REFERENCE_COLUMNS]
+        columns += [c[0] for c in kalman_rows.REFERENCE_COLUMNS]
     return columns
 
 
@@ -286,7 +290,7 @@ def replay_rows(header, rows, gains, as_logged=True):
     except (KeyError, TypeError, IndexError, AttributeError) as e:
         written_by = header.get("versions", {}).get("tipbot_fw", "?")
         if written_by == tipbot_fw.__version__:
-            raise ReplayError("tipbot_fw.replay failed on this log, although the log says it was written by "
+            raise ReplayError("tipbot_fw.record.replay failed on this log, although the log says it was written by "
                               "this version (%s): %s: %s. Either the log comes from a development state of "
                               "that version with another header, or this is a bug: report it with the log"
                               % (written_by, type(e).__name__, e))
@@ -369,8 +373,8 @@ def replay_log(log_path, gains_path=None, logged_gains_path=None, tol=DEFAULT_TO
         r.other_u_diff = {}
         mine = fw_replay.signals(header, rows, r.logged_gains or g)
         theirs = fw_replay.signals(r.other_header, r.other, g)
-        for name, j in zip(logfile.ACTUATED_NAMES, ACTUATED_INPUTS):
-            d = theirs["u"][:, j] - mine["u"][:, j]
+        for name, j in zip(vocabulary.ACTUATED, ACTUATED_INPUTS):
+            d = theirs.u[:, j] - mine.u[:, j]
             r.other_u_diff[name] = (float(np.max(np.abs(d))), float(np.sqrt(np.mean(d * d))))
         r.other_sat = _sat_fraction(r.other, [c["name"] for c in r.other_header["columns"]])
     return r
@@ -415,7 +419,7 @@ def describe(r, tol=DEFAULT_TOL):
 
 
 def _sat_fraction(rows, names):
-    return float(np.mean((rows[:, names.index("flags")].astype(int) & logfile.SATURATION_BITS) != 0))
+    return float(np.mean((rows[:, names.index("flags")].astype(int) & vocabulary.SATURATION_BITS) != 0))
 
 
 def _first_bad_tick(r, tol):
@@ -449,14 +453,14 @@ def plot(r, out_dir):
     gaps = [(t[i - 1], t[i]) for i in starts]
     t = np.insert(t, starts, np.nan)
     paths = []
-    inputs = [("u", j, "u_" + n, "V") for n, j in zip(logfile.ACTUATED_NAMES, ACTUATED_INPUTS)]
-    states = [("x_hat", i, "x^_" + n, u) for i, (n, u) in enumerate(zip(logfile.STATE_NAMES, logfile.STATE_UNITS))]
+    inputs = [("u", j, "u_" + n, "V") for n, j in zip(vocabulary.ACTUATED, ACTUATED_INPUTS)]
+    states = [("x_hat", i, "x^_" + n, u) for i, (n, u) in enumerate(zip(vocabulary.STATE_NAMES, vocabulary.STATE_UNITS))]
     for what, panels, ncols in (("inputs", inputs, 2), ("estimates", states, 2)):
         nrows = (len(panels) + ncols - 1) // ncols
         fig, axes = plt.subplots(nrows, ncols, figsize=(11, 2.2 * nrows + 0.8), sharex=True, squeeze=False)
         for ax, (key, j, name, unit) in zip(axes.flat, panels):
             for label, sig, style in series:
-                ax.plot(t, np.insert(sig[key][:, j], starts, np.nan), label=label, **style)
+                ax.plot(t, np.insert(getattr(sig, key)[:, j], starts, np.nan), label=label, **style)
             for k, (a, b) in enumerate(gaps):
                 ax.axvspan(a, b, color="0.85", zorder=0, label="not kept" if k == 0 else None)
             ax.set_ylabel("%s [%s]" % (name, unit))

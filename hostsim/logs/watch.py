@@ -6,7 +6,7 @@
     (make watch HOST=... starts a run on the brick with its telemetry pointed here)
 
 Listens for the datagrams of `python3 -m tipbot_fw run --telemetry HOST:PORT` (UDP, decoded by
-tipbot_fw.telemetry: docs/telemetry.md) and shows the last --window seconds: the controller's
+tipbot_fw.record.telemetry: docs/telemetry.md) and shows the last --window seconds: the controller's
 estimates of the link angles and wheel displacements (the Kalman filter's x^, or the
 detector's x~), the inputs, the disturbance estimate and the tick's duration with the overruns; the
 title says the battery, the datagram rate and how many were lost on the way (gaps in their
@@ -30,10 +30,12 @@ import sys
 import time
 
 import hostsim
-from tipbot_fw import logfile, telemetry
+from tipbot_fw.record import telemetry
 
 from hostsim.errors import TipbotError
 from hostsim.logs.export import csv_header, format_value
+from tipbot_fw import vocabulary
+from tipbot_fw.cores.detector_rows import DetectorRows
 
 NAN = float("nan")
 DEFAULT_PORT = 5005
@@ -52,7 +54,7 @@ PANELS = (
     ("tick duration", "ms", [("tick_s", "read..write", 1e3)]),
 )
 COUNTERS = ("run", "seq", "tick", "overruns", "send_errors")
-_UNITS = dict(logfile.COLUMNS)
+_UNITS = dict(DetectorRows.columns)
 FIELDS = list(telemetry.DECODED)
 # a driven run's reference: plotted, NaN (no line) for a run that stands; not recorded (a
 # recording's columns are those of every run)
@@ -172,7 +174,7 @@ class View(object):
         for line, field, scale in self.lines:
             line.set_data(t, [x * scale for x in d[field][first:end]])
         flags = d["flags"][first:end]
-        over = [i for i, f in enumerate(flags) if int(f) & logfile.FLAG_BITS["overrun"]]
+        over = [i for i, f in enumerate(flags) if int(f) & vocabulary.FLAG_BITS["overrun"]]
         self.overrun_line.set_data([t[i] for i in over], [d["tick_s"][first + i] * 1e3 for i in over])
         for ax in self.axes:
             ax.relim()

@@ -35,11 +35,9 @@ import numpy as np
 
 from hostsim.model.params import REQUIRED
 from hostsim.paths import CACHE_DIR as _CACHE
-from tipbot_fw.gains import ACTUATED_INPUTS
+from tipbot_fw.vocabulary import ACTUATED_INPUTS, INPUT_NAMES, STATE_NAMES  # noqa: F401  (the model's names)
 
-Q_NAMES = ("d_r", "d_l", "th1", "th2", "th3")
-STATE_NAMES = Q_NAMES + tuple(n + "_dot" for n in Q_NAMES)
-INPUT_NAMES = ("u_r", "u_l", "u_th1", "u_th2", "u_th3")
+Q_NAMES = STATE_NAMES[:5]
 PARAM_ORDER = tuple(sorted(REQUIRED))
 CACHE_DIR = os.path.join(_CACHE, "model")
 

@@ -36,9 +36,10 @@ from hostsim.model.spread import load_spread
 from hostsim.model.equations import INPUT_NAMES, STATE_NAMES, RobotModel, Variant, get_variant, state_scale_to_si
 from hostsim.model.params import DEFAULT_PARAMS_PATH, load_params, params_hash
 from hostsim.paths import GAINS_DIR
-from tipbot_fw.gains import ACTUATED_INPUTS, integrator_count
+from tipbot_fw.cores.kalman_design import fold, spectral_radius
+from tipbot_fw.gains import gains_from_dict
+from tipbot_fw.vocabulary import ACTUATED_INPUTS, GAINS_SCHEMA_VERSION, integrator_count
 
-SCHEMA_VERSION = 2
 DEFAULT_TS_S = 0.005
 DEFAULT_OUT_DIR = GAINS_DIR
 VARIANT_NAMES = ("paper", "physical")
@@ -142,13 +143,29 @@ def design_gains(variant, params, ts_s=DEFAULT_TS_S, detector_poles=None, noise=
                                    [cm_per_unit] * 2 + [1] * 3 + [cm_per_unit] * 2 + [1] * 3)
     chosen = robust_design(variant, params, ts_s, a, b, q, r, e_mat, noise, spread)
     l1, l2, g_w, det_eig = design.robust_detector(a, b, c, e_mat, ACTUATED_INPUTS, detector_poles)
-    return GainDesign(variant=variant, model=model, ts_s=float(ts_s), A=a, B=b, C=c, E=e_mat, Q=q, R=chosen["R"],
-                      r_wheel_scale=chosen["r_wheel_scale"], margins=chosen["margins"],
-                      K=chosen["K"], P=chosen["P"], K_w=chosen["K_w"], L1=l1, L2=l2, G_w=g_w,
-                      closed_loop_eigenvalues=chosen["eig"], detector_eigenvalues=det_eig,
-                      structure=design.structure_report(a, b, c, ACTUATED_INPUTS), kalman=chosen["kalman"],
-                      state_feedback_radii=state_feedback_radii(variant, params, ts_s, chosen["K"]),
-                      spread=spread, preflight=preflight.preflight_block(chosen["kalman"], params, ts_s))
+    return GainDesign(variant=variant, model=model, ts_s=float(ts_s), A=a, B=b, C=c, E=e_mat, Q=q, R=chosen.R,
+                      r_wheel_scale=chosen.r_wheel_scale, margins=chosen.margins,
+                      K=chosen.K, P=chosen.P, K_w=chosen.K_w, L1=l1, L2=l2, G_w=g_w,
+                      closed_loop_eigenvalues=chosen.eig, detector_eigenvalues=det_eig,
+                      structure=design.structure_report(a, b, c, ACTUATED_INPUTS), kalman=chosen.kalman,
+                      state_feedback_radii=state_feedback_radii(variant, params, ts_s, chosen.K),
+                      spread=spread, preflight=preflight.preflight_block(chosen.kalman, params, ts_s))
+
+
+@dataclasses.dataclass(frozen=True)
+class RobustLaw:
+    """What robust_design chose: the wheel inputs' weight factor and the weights R it gave, the
+    LQR (K, its Riccati solution P, the closed loop's eigenvalues), K_w, the Kalman filter and law
+    (hostsim.model.kalman.KalmanDesign) and their margins on the uncertainty set (None until
+    margins are known)."""
+    r_wheel_scale: float
+    R: np.ndarray
+    K: np.ndarray
+    P: np.ndarray
+    eig: np.ndarray
+    K_w: np.ndarray
+    kalman: "kalman.KalmanDesign"
+    margins: Optional["kalman.Margins"] = None
 
 
 def robust_design(variant, params, ts_s, a, b, q, r, e_mat, noise=None, spread=None):
@@ -158,7 +175,7 @@ def robust_design(variant, params, ts_s, a, b, q, r, e_mat, noise=None, spread=N
     modes all decay and oscillate with enough damping on every plant of kalman.UncertaintySet
     (kalman.Margins.robust), the physical variant's law with integral action first (law_design),
     without it if no step holds with it. When none does, the plain design (both factors 1, the
-    integrators if the variant has them). -> dict."""
+    integrators if the variant has them). -> RobustLaw."""
     uncertainty = kalman.UncertaintySet(params, ts_s, () if spread is None else spread.robots(params))
     t = state_scale_to_si(variant)
     ti = np.linalg.inv(t)
@@ -177,15 +194,15 @@ def robust_design(variant, params, ts_s, a, b, q, r, e_mat, noise=None, spread=N
             kd = kalman.design_kalman(t @ a @ ti, t @ b, k @ ti, k_w, params["rw_m"], ts_s, ns,
                                       integral=None if k_z is None else kalman.integral_law(
                                           k_z / t[0, 0], params["u_max_v"]))
-            found = dict(r_wheel_scale=factor, R=r_try, K=k, P=p, eig=eig, K_w=k_w, kalman=kd)
+            found = RobustLaw(r_wheel_scale=factor, R=r_try, K=k, P=p, eig=eig, K_w=k_w, kalman=kd)
             if plain is None:
                 plain = found
             if uncertainty.holds(kd):
-                return dict(found, margins=uncertainty.margins(kd))
-    return dict(plain, margins=uncertainty.margins(plain["kalman"]))
+                return dataclasses.replace(found, margins=uncertainty.margins(kd))
+    return dataclasses.replace(plain, margins=uncertainty.margins(plain.kalman))
 
 
-# Integral action on the wheel positions (tipbot_fw.kalman, "Integral action"), in the designs
+# Integral action on the wheel positions (tipbot_fw.cores.kalman, "Integral action"), in the designs
 # that are ours (the paper's variant keeps the paper's law): the integral's weight is the wheel
 # position's, spread over INTEGRAL_TIME_S (Bryson: a position error of 1 cm held that long costs
 # as much as 1 cm), so the integrators take out an offset in a few times that, slower than the
@@ -213,7 +230,7 @@ def state_feedback_radii(variant, params, ts_s, k):
     out = {}
     for name in VARIANT_NAMES:
         am, bm = design.discrete_model_si(RobotModel(name, params), ts_s)
-        out[name] = kalman.spectral_radius(am - bm @ k_si)
+        out[name] = spectral_radius(am - bm @ k_si)
     return out
 
 
@@ -239,7 +256,7 @@ def to_document(g):
     variant, params = g.variant, g.model.params
     st = g.structure
     doc = {
-        "schema_version": SCHEMA_VERSION,
+        "schema_version": GAINS_SCHEMA_VERSION,
         "model_variant": variant.name,
         "model_options": variant.options(),
         "ts_s": _num(g.ts_s),
@@ -263,7 +280,7 @@ def to_document(g):
                                       "every one above damping_above_hz has a damping ratio >= damping_min"),
         "state_feedback_spectral_radius": {k: _num(v) for k, v in sorted(g.state_feedback_radii.items())},
         # of A - B K (the file's law without the Kalman block's integrators, as the firmware checks)
-        "closed_loop_spectral_radius": _num(kalman.spectral_radius(g.A - g.B @ g.K)),
+        "closed_loop_spectral_radius": _num(spectral_radius(g.A - g.B @ g.K)),
         "detector_eigenvalues": [_num(z.real) for z in sorted(g.detector_eigenvalues, key=lambda z: z.real)],
         "controllability_rank": st["controllability_rank"],
         "observability_rank": st["observability_rank"],
@@ -303,15 +320,13 @@ def with_law(doc, k_file=None, k_w=None, note=""):
     """A gains document with another law: K (file units, 5 x 10) and/or K_w (5 x 5); the Kalman
     block's K_a and folded law follow (the filter itself is unchanged). For baselines and
     diagnoses (the PD baseline, K_w = 0), not for the robot."""
-    from tipbot_fw.gains import gains_from_dict
-    from tipbot_fw.kalman import fold
     out = json.loads(json.dumps(doc))
     if k_file is not None:
         out["K"] = np.asarray(k_file, dtype=float).tolist()
     if k_w is not None:
         out["K_w"] = np.asarray(k_w, dtype=float).tolist()
     a, b, k = (np.array(out[key]) for key in ("A", "B", "K"))
-    out["closed_loop_spectral_radius"] = float(np.max(np.abs(np.linalg.eigvals(a - b @ k))))
+    out["closed_loop_spectral_radius"] = spectral_radius(a - b @ k)
     si = gains_from_dict(dict(out, kalman=doc["kalman"]), "<with_law>", check_kalman=False)
     kal = out["kalman"]
     dist = [i for i, name in enumerate(("w_r", "w_l", "w_th2", "w_th3")) if name in kal["state_names"]]
@@ -374,7 +389,7 @@ def summary(g):
         "variant %s: ts %.4g s, state units %s" % (g.variant.name, g.ts_s, "/".join(sorted(set(g.variant.state_units)))),
         "  controllability rank %d, observability rank %d (of 10)" % (st["controllability_rank"], st["observability_rank"]),
         "  open-loop |eig|: %s" % ol,
-        "  closed-loop spectral radius of A - B K: %.6f" % kalman.spectral_radius(g.A - g.B @ g.K),
+        "  closed-loop spectral radius of A - B K: %.6f" % spectral_radius(g.A - g.B @ g.K),
         "  detector eigenvalues (Abar - L1 C): %s" % ", ".join("%.4g" % z.real for z in g.detector_eigenvalues),
         "  Kalman filter: %d states (observability rank %d), slowest error mode |eig| %.5f"
         % (g.kalman.n, g.kalman.observability_rank, np.max(np.abs(g.kalman.filter_eigenvalues))),

@@ -37,20 +37,17 @@ import scipy.linalg
 
 from hostsim.errors import DesignError
 from hostsim.model import design
-from tipbot_fw import kalman as fw_kalman
-from tipbot_fw.gains import ACTUATED_INPUTS, INTEGRATOR_NAMES
+from tipbot_fw.cores import kalman_design as fw_design
+from tipbot_fw.cores.kalman_design import law_gain, spectral_radius  # noqa: F401  (the host's one of each)
+from tipbot_fw.vocabulary import (ACTUATED, ACTUATED_INPUTS, DISTURBANCE_NAMES, GYRO_BIAS, INTEGRATOR_NAMES,
+                                  MEASUREMENT_NAMES, MEASUREMENT_UNITS, N_STATES, STATE_NAMES, STATE_UNITS)
 
-N_X = 10
+N_X = N_STATES
 N_U = len(ACTUATED_INPUTS)
 # The input disturbances the filter estimates: the wheels' (module docstring of NoiseSettings).
 DISTURBANCE_INPUTS = (0, 1)          # indices into the actuated inputs (u_r, u_l, u_th2, u_th3)
-X_NAMES = ("d_r", "d_l", "th1", "th2", "th3", "d_r_dot", "d_l_dot", "th1_dot", "th2_dot", "th3_dot")
-X_UNITS = ("m", "m", "rad", "rad", "rad", "m/s", "m/s", "rad/s", "rad/s", "rad/s")
-W_NAMES = ("w_r", "w_l", "w_th2", "w_th3")
-MEASUREMENT_NAMES = ("phi_r", "phi_l", "th2", "th3", "gyro")
-MEASUREMENT_UNITS = ("rad", "rad", "rad", "rad", "rad/s")
 N_M = len(MEASUREMENT_NAMES)
-ACTUATED_NAMES = ("u_r", "u_l", "u_th2", "u_th3")
+ACTUATED_NAMES = tuple("u_" + a for a in ACTUATED)
 # Multipliers tried, in order, on the filter's input noise (NoiseSettings.input_noise_scale):
 # fictitious input noise is the classic way to give a Kalman filter's loop back the robustness of
 # the state feedback it serves (loop transfer recovery), at the cost of noisier estimates.
@@ -59,8 +56,8 @@ DEG = math.pi / 180.0
 ENCODER_COUNTS_PER_ROT = 360
 
 
-# The unit of the law's integrators of the wheel positions (tipbot_fw.gains.INTEGRATOR_NAMES,
-# after the filter's states where a design has them: tipbot_fw.kalman, "Integral action").
+# The unit of the law's integrators of the wheel positions (tipbot_fw.vocabulary.INTEGRATOR_NAMES,
+# after the filter's states where a design has them: tipbot_fw.cores.kalman, "Integral action").
 INTEGRAL_UNIT = "m s"
 # The integrators' authority: at their limit they ask at most this share of u_max of a motor (the
 # rest for balancing and driving); a tilt estimate 0.02 rad off (a start a degree off upright)
@@ -69,11 +66,11 @@ INTEGRAL_SHARE = 0.5
 
 
 def state_names(dist_inputs=DISTURBANCE_INPUTS, integral=False):
-    return X_NAMES + tuple(W_NAMES[i] for i in dist_inputs) + ("gyro_bias",) + (INTEGRATOR_NAMES if integral else ())
+    return STATE_NAMES + tuple(DISTURBANCE_NAMES[i] for i in dist_inputs) + (GYRO_BIAS,) + (INTEGRATOR_NAMES if integral else ())
 
 
 def state_units(dist_inputs=DISTURBANCE_INPUTS, integral=False):
-    return X_UNITS + ("V",) * len(dist_inputs) + ("rad/s",) + ((INTEGRAL_UNIT,) * len(INTEGRATOR_NAMES) if integral else ())
+    return STATE_UNITS + ("V",) * len(dist_inputs) + ("rad/s",) + ((INTEGRAL_UNIT,) * len(INTEGRATOR_NAMES) if integral else ())
 
 
 @dataclasses.dataclass(frozen=True)
@@ -189,7 +186,7 @@ class NoiseSettings:
 
 def augmented_model(a_si, b_si, rw_m, dist_inputs=DISTURBANCE_INPUTS):
     """(A_a, B_a, C_a) of the module docstring from the discrete model (SI)."""
-    return fw_kalman.augmented_model(a_si, b_si[:, ACTUATED_INPUTS], rw_m, dist_inputs)
+    return fw_design.augmented_model(a_si, b_si[:, ACTUATED_INPUTS], rw_m, dist_inputs)
 
 
 def observability_rank(aa, ca):
@@ -210,15 +207,6 @@ def kalman_gain(aa, ca, qn, rn):
     return gain, p, (post + post.T) / 2
 
 
-def law_gain(k_si, k_w, dist_inputs=DISTURBANCE_INPUTS, k_z=None):
-    """K_a = [K_act, K_w_act (disturbed inputs' columns), 0, K_z (the integrators', if any)]:
-    u_act = -K_a x^ (4 x n)."""
-    act = ACTUATED_INPUTS
-    kw_cols = [act[i] for i in dist_inputs]
-    parts = [k_si[act, :], k_w[np.ix_(act, kw_cols)], np.zeros((N_U, 1))]
-    return np.hstack(parts + ([] if k_z is None else [k_z]))
-
-
 @dataclasses.dataclass(frozen=True)
 class IntegralLaw:
     """The law's integral action: K_z (4 x 2, V per m s of z_r, z_l, SI) and the integrators'
@@ -228,6 +216,8 @@ class IntegralLaw:
     u_max_v: float
 
     def document(self):
+        # (the text names the module as the committed gains files do: regenerated files stay identical;
+        # the core is tipbot_fw/cores/kalman.py)
         return {"states": list(INTEGRATOR_NAMES), "limit_m_s": self.limit_m_s, "share_of_u_max": INTEGRAL_SHARE,
                 "why": "z = integral of (d^ - d_ref) of each wheel (tipbot_fw.kalman, 'Integral action'); the "
                        "LQR's integral weight is the wheel position's over hostsim.model.gains.INTEGRAL_TIME_S; "
@@ -244,7 +234,7 @@ def integral_law(k_z, u_max_v):
 
 def with_integrators(aa, ba, ca, gain, ts_s):
     """The filter's (A_a, B_a, C_a, L) with the law's integrators of the wheel positions after its
-    states (tipbot_fw.kalman, "Integral action"): z_k = z_{k-1} + ts d^_k, so A's and B's rows of
+    states (tipbot_fw.cores.kalman, "Integral action"): z_k = z_{k-1} + ts d^_k, so A's and B's rows of
     z are ts times d's (the prediction d-_k), L's ts times d's (the update to d^_k), C blind to z."""
     a, b = design.integrator_model(aa, ba, ts_s)         # the LQR's model with its integrators
     c = np.hstack([ca, np.zeros((ca.shape[0], len(INTEGRATOR_NAMES)))])
@@ -292,9 +282,9 @@ class KalmanDesign:
         return np.linalg.eigvals((np.eye(nf) - self.L[:nf] @ self.C[:, :nf]) @ self.A[:nf, :nf])
 
     def folded_law(self):
-        """The tick as one matrix (tipbot_fw.kalman): rows [u_k (4), xi_k (n)], columns
+        """The tick as one matrix (tipbot_fw.cores.kalman): rows [u_k (4), xi_k (n)], columns
         [u_{k-1} (4, applied volts), xi_{k-1} (n), dphi_r, dphi_l, m_k (5, SI)]."""
-        return fw_kalman.fold(self.A, self.B, self.C, self.L, self.K, self.rw_m, self.n - self.n_filter)
+        return fw_design.fold(self.A, self.B, self.C, self.L, self.K, self.rw_m, self.n - self.n_filter)
 
     def state_bounds(self):
         return [STATE_BOUNDS[name.split("_")[0] if name.startswith(("w_", "z_")) else name]
@@ -320,7 +310,7 @@ class KalmanDesign:
         }
 
 
-# Ranges of the carried state for the fixed-point law (tipbot_fw.fixedpoint): far beyond what
+# Ranges of the carried state for the fixed-point law (tipbot_fw.cores.fixedpoint): far beyond what
 # a standing robot reaches, so that no sum can overflow; their resolution is bound / 2^32.
 STATE_BOUNDS = {"d_r": 1.0, "d_l": 1.0, "th1": 4.0, "th2": 4.0, "th3": 4.0, "d_r_dot": 20.0, "d_l_dot": 20.0,
                 "th1_dot": 200.0, "th2_dot": 200.0, "th3_dot": 200.0, "w": 100.0, "gyro_bias": 1.0, "z": 2.0 ** 15}
@@ -351,13 +341,6 @@ def design_kalman(a_si, b_si, k_si, k_w, rw_m, ts_s, noise=None, integral=None):
                         L=gain, P=p, P_post=post, K=k_a, observability_rank=rank, integral=integral)
 
 
-reference_step = fw_kalman.reference_step
-
-
-def spectral_radius(m):
-    return float(np.max(np.abs(np.linalg.eigvals(m))))
-
-
 def delayed_plant(ac_si, bc_si, ts_s, delay_s):
     """The plant sampled at ts_s when each new input lands delay_s into the tick (the old one
     holds until then): x_{k+1} = A x_k + B1 u_k + B0 u_{k-1} (SI, all 5 inputs)."""
@@ -383,7 +366,7 @@ def loop_matrix(kd, a, b1, b0, rw_m=None):
     act = ACTUATED_INPUTS
     b1, b0 = b1[:, act], b0[:, act]
     n = kd.n
-    ca_x = fw_kalman.measurement_matrix(n, kd.rw_m if rw_m is None else rw_m)[:, :N_X]
+    ca_x = fw_design.measurement_matrix(n, kd.rw_m if rw_m is None else rw_m)[:, :N_X]
     ikc = np.eye(n) - kd.L @ kd.C
     # u_k = -K x^_k;  x_{k+1} = A x_k + B1 u_k + B0 u_{k-1};
     # x^_{k+1} = ikc (A_a x^_k + B_a u_k) + L C_x x_{k+1}

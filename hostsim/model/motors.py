@@ -2,7 +2,7 @@
 
 Output-shaft quantities, SI: J w' = Km i - beta w - Tc sgn(w), i = (u - Ke w) / Ra (inductance
 neglected). The identification on the host (hostsim.logs.identify) compares what it finds
-with these; the simulated motor (hostsim.world.motor_sim) runs them.
+with these; the simulated motor (hostsim.sim.motor_sim) runs them.
 """
 import math
 from collections import namedtuple

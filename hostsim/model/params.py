@@ -11,7 +11,7 @@ import os
 from hostsim.errors import ParameterError
 from hostsim.paths import REPO_ROOT
 from tipbot_fw import fields
-from tipbot_fw.config import MOTOR_ROLES
+from tipbot_fw.vocabulary import MOTOR_ROLES
 
 DEFAULT_PARAMS_PATH = os.path.join(REPO_ROOT, "params", "robot.json")
 
@@ -38,7 +38,7 @@ RANGES = (
     ("jm_kg_m2", 1e-8, 1e-2),
     ("_kg_m2", 1e-8, 0.1),
     ("g_m_s2", 9.7, 9.9),            # the Earth's surface
-    ("u_max_v", 1.0, 11.0),          # tipbot_fw.plausibility: what an EV3 battery gives
+    ("u_max_v", 1.0, 11.0),          # tipbot_fw.guard.plausibility: what an EV3 battery gives
     ("ke_v_s", 1e-3, 2.0),
     ("km_nm_a", 1e-3, 2.0),
     ("ra_ohm", 0.5, 100.0),

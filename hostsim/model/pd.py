@@ -25,7 +25,7 @@ difference Appendix D shows.
 Where the baseline runs:
 - linear and nonlinear modes: u = -K_pd y, the measurement itself (hostsim.sim.linear_sim);
 - firmware in the loop: the firmware has one law, u = -K x~ - K_w w^, so it is given a
-  gains document with K = K_pd and K_w = 0 (hostsim.sim.fil.pd_gains_document): the PD acts on
+  gains document with K = K_pd and K_w = 0 (hostsim.sim.firmware_build.pd_gains_document): the PD acts on
   the estimate x~, which equals y after a few ticks (detector poles at 0.2; with C = I and
   L2 = E G_w the estimate's error does not depend on the disturbance).
 """
@@ -42,6 +42,8 @@ from scipy.optimize import minimize
 from hostsim.errors import DesignError
 from hostsim.model import design
 from hostsim.paths import CACHE_DIR as _CACHE, GAINS_DIR, REPO_ROOT
+from tipbot_fw.cores.kalman_design import spectral_radius
+from tipbot_fw.gains import load_gains_document
 
 CACHE_DIR = os.path.join(_CACHE, "pd")
 
@@ -83,8 +85,8 @@ def lq_cost(a, b, q, r, k):
     return cost if cost > 0 else np.inf
 
 
-def spectral_radius(a, b, k):
-    return float(np.max(np.abs(np.linalg.eigvals(a - b @ k))))
+def closed_loop_radius(a, b, k):
+    return spectral_radius(a - b @ k)
 
 
 def design_pd(a, b, q, r, k_lqr):
@@ -99,7 +101,7 @@ def design_pd(a, b, q, r, k_lqr):
     z = start / scale
     opts = dict(maxiter=6000, xatol=1e-7, fatol=1e-10, adaptive=True)
     if not np.isfinite(lq_cost(a, b, q, r, pd_matrix(z * scale))):
-        res = minimize(lambda v: spectral_radius(a, b, pd_matrix(v * scale)), z, method="Nelder-Mead", options=opts)
+        res = minimize(lambda v: closed_loop_radius(a, b, pd_matrix(v * scale)), z, method="Nelder-Mead", options=opts)
         z = res.x
         if not np.isfinite(lq_cost(a, b, q, r, pd_matrix(z * scale))):
             raise DesignError("no stabilizing PD gains of this structure found (best spectral radius %.4f)" % res.fun)
@@ -113,22 +115,20 @@ def pd_for_gains(path):
 
     Cached: the Nelder-Mead search takes several seconds.
     """
-    with open(path, "rb") as f:
-        data = f.read()
+    doc, gains = load_gains_document(path)      # the file's units: the PD is designed in them
     with open(__file__, "rb") as f:
-        key = hashlib.sha256(data + f.read()).hexdigest()[:16]
+        key = hashlib.sha256(gains.sha256.encode("ascii") + f.read()).hexdigest()[:16]
     cache = os.path.join(CACHE_DIR, "%s.json" % key)
     if os.path.exists(cache):
         with open(cache) as f:
             return json.load(f)
-    doc = json.loads(data.decode("utf-8"))
     a, b, q, r, k_lqr = (np.array(doc[n], dtype=float) for n in ("A", "B", "Q", "R", "K"))
     k, named, cost = design_pd(a, b, q, r, k_lqr)
     # the reference is the LQR of this very cost: the file's own law where it is that (the paper
     # variant), not a law with integral action, which minimizes a cost of its integrators too
     k_opt = design.dlqr(a, b, q, r, doc["actuated_inputs"])[0]
     out = dict(K=k.tolist(), gains={n: float(v) for n, v in named.items()}, cost=float(cost),
-               lqr_cost=lq_cost(a, b, q, r, k_opt), spectral_radius=spectral_radius(a, b, k),
+               lqr_cost=lq_cost(a, b, q, r, k_opt), spectral_radius=closed_loop_radius(a, b, k),
                units=doc["state_units"], gains_file=os.path.relpath(path, REPO_ROOT))
     os.makedirs(CACHE_DIR, exist_ok=True)
     tmp = cache + ".tmp%d" % os.getpid()

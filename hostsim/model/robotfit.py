@@ -34,7 +34,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from hostsim.errors import TipbotError
-from tipbot_fw import logfile
+from tipbot_fw.record import logfile
 from hostsim.model import bodies
 from hostsim.model.params import parse_params
 from hostsim.model.spread import spread_from_doc
@@ -50,7 +50,7 @@ class RobotFitError(TipbotError):
 
 
 def read_log(path, error):
-    """(header, rows, names) of an experiment log (tipbot_fw.logfile); error naming the file."""
+    """(header, rows, names) of an experiment log (tipbot_fw.record.logfile); error naming the file."""
     try:
         header, rows = logfile.read_log(path)
     except (OSError, logfile.LogFormatError) as e:

@@ -19,15 +19,15 @@ import math
 import numpy as np
 
 from hostsim.model.equations import RobotModel
-from hostsim.sim.fil import firmware_config, friction_torques_nm
+from hostsim.sim.firmware_build import firmware_config, friction_torques_nm
 from hostsim.sim.scenario import load_scenario
 from hostsim.world.drivetrain import DrivetrainPlant
 from hostsim.world.gyro import GyroModel
 from hostsim.world.sensors import BatteryModel, EncoderModel
 from hostsim.world.stand import Stand
-from tipbot_fw.clock import VirtualClock
+from tipbot_fw.io.clock import VirtualClock
 from tipbot_fw.config import MOTOR_ROLES
-from tipbot_fw.devices import MemoryDevices
+from tipbot_fw.io.devices import MemoryDevices
 from tipbot_fw.experiments import run_experiment
 
 DT_S = 0.001

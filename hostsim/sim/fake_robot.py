@@ -11,7 +11,7 @@ SEPARATE process, exactly as on the brick:
     python3 -m tipbot_fw run --gains gains/physical.json --config CFG --sysfs-root DIR
 
 (or the deployed launcher over ssh: tests/test_deploy.py). The files on disk are the only
-link between the two processes. This is the real-time counterpart of hostsim.sim.fil, which runs
+link between the two processes. This is the real-time counterpart of hostsim.sim.firmware_run, which runs
 the firmware in lock-step with a virtual clock in one process.
 
 Every ~1 ms (--step-ms) the loop reads what the firmware wrote (FakeEV3.poll), integrates
@@ -33,13 +33,13 @@ bias, until the firmware switches it to GYRO-G&A; the first samples after the sw
 still the old mode's (hostsim.world.fake_ev3.GYRO_MODE_SWITCH_S), as on the real sensor.
 
 The firmware must be told the start pose, gyro mounting and wheel radius: --write-config
-FILE writes the matching firmware configuration (hostsim.sim.fil.firmware_config; realtime
+FILE writes the matching firmware configuration (hostsim.sim.firmware_build.firmware_config; realtime
 priority 0), for `--config` or for `make deploy CONFIG=FILE`.
 
 Prints "fake_robot: ready ..." once the tree exists, what the brick shows (its status lights
 when they change, the notes of each melody), a summary when it stops (after --duration
 seconds, or on SIGTERM / SIGINT). Not for accuracy studies: the host's scheduling
-makes runs unrepeatable; use hostsim.sim.fil for that.
+makes runs unrepeatable; use hostsim.sim.firmware_run for that.
 """
 import argparse
 import json
@@ -53,15 +53,15 @@ import numpy as np
 
 from hostsim.errors import TipbotError
 from hostsim.world.fake_ev3 import DEFAULT_MOTOR_PORTS, FakeEV3, FakeEV3Error
-from hostsim.sim.fil import firmware_config
+from hostsim.sim.firmware_build import firmware_config
 from hostsim.model.equations import RobotModel, state_scale_to_si
 from hostsim.model.params import load_params, scaled_params
-from hostsim.world.plant import Plant
+from hostsim.world.plant import Plant, disturbance_at
 from hostsim.world.stand import Stand
-from hostsim.sim.scenario import disturbance_at, load_scenario, parse_scenario
+from hostsim.sim.scenario import load_scenario, parse_scenario
 from hostsim.world.sensors import SensorModel
-from tipbot_fw.config import MOTOR_ROLES, ConfigError
-from tipbot_fw.gains import ACTUATED_INPUTS
+from tipbot_fw.config import ConfigError
+from tipbot_fw.vocabulary import ACTUATED_INPUTS, MOTOR_ROLES
 
 DEFAULT_STEP_S = 0.001
 # The firmware's start-up to the end of its gyro calibration is about 1.1 s

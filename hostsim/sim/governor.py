@@ -25,7 +25,7 @@ import numpy as np
 import scipy.linalg
 import scipy.optimize
 
-from tipbot_fw.gains import ACTUATED_INPUTS
+from tipbot_fw.vocabulary import ACTUATED_INPUTS
 
 HORIZON_S = 6.0
 MARGIN_V = 0.6

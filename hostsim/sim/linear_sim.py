@@ -1,23 +1,31 @@
-"""The paper's simulation: the detector and the controller on the linear or nonlinear model.
+"""The paper's simulation: an estimator and the controller on the linear or nonlinear model.
 
 Linear: plant x_{k+1} = A x_k + B (u_k + w_k) (input disturbances, E = B), full-state
 measurement y = x. Nonlinear: the same loop around hostsim.world.plant, the input (plus w) held
-over each tick, y = x sampled at the ticks. The detector and the control law are those of
-docs/architecture.md, with the same saturation as the firmware. Written independently of
-tipbot_fw so that comparing the two tests the firmware's implementation.
+over each tick, y = x sampled at the ticks. The estimator is the paper's detector (the default
+of these modes, for reproducing the paper) or the firmware's default one, the Kalman filter of
+the gains' `kalman` block fed the ideal measurement of the true state (KalmanController); the
+control law is that of docs/architecture.md, with the same saturation as the firmware. Written
+in floats, independently of the firmware's fixed-point core, so that comparing the two tests
+the firmware's implementation.
 
 Everything here is SI (m, rad, V): the gains are a tipbot_fw.gains.Gains, which the firmware's
 own loader validated and converted to SI (a gains file in paper units, cm, included).
 """
 import numpy as np
 
+from hostsim.errors import TipbotError
 from hostsim.model import design
 from hostsim.model.params import scaled_params
 from hostsim.model.equations import RobotModel, state_scale_to_si
 from hostsim.sim.governor import ReferenceGovernor
 from hostsim.sim.result import RunResult
-from hostsim.world.plant import Plant
-from hostsim.sim.scenario import disturbance_at, scenario_load
+from hostsim.world.plant import Plant, disturbance_at
+from hostsim.sim.scenario import scenario_load
+from tipbot_fw.cores.kalman_design import reference_step
+from tipbot_fw.vocabulary import ACTUATED_INPUTS
+
+ESTIMATORS = ("detector", "kalman")
 
 PLANT_DT_S = 0.001
 
@@ -65,6 +73,45 @@ class HostController:
             self.ref, self.u_ref = self.governor.reference(self.xh)
         self.u_unsat = self._law(self.xh, self.y, self.w_hat)
         self.u = _saturate(self.u_unsat, g.u_max_v)
+        return self.u
+
+
+class KalmanController:
+    """The firmware's default estimator and law, in floats (SI, one tick at a time): the gains'
+    Kalman filter (its `kalman` block: the filter's model, gain L and law K_a, with the law's
+    integrators where the gains have them), tipbot_fw.cores.kalman_design.reference_step,
+    measuring m = C_a x of the true state: the wheel angles relative to link 1, the joints, the
+    gyro's rate, ideal (no quantization, no bias). The estimate starts at xhat0 (the robot's
+    states), no disturbance, no bias. With ``k_pd`` (5x10, SI) the law is u = -K_pd x^."""
+
+    def __init__(self, g, xhat0, k_pd=None):
+        kal = g.kalman
+        if kal is None:
+            raise TipbotError("the Kalman estimator needs gains with a kalman block")
+        self.g, self.kal, self.k_pd = g, kal, k_pd
+        self.c_x = kal.C[:, :10]
+        self.w_at = [(10 + j, ACTUATED_INPUTS[i]) for j, i in enumerate(kal.disturbance_inputs)]
+        self.xf = np.zeros(kal.n)
+        self.xf[:10] = xhat0
+        self._set(-kal.K @ self.xf)
+
+    def _set(self, u_act):
+        """The tick's estimate views and its input (u_act: the law's 4 actuated inputs)."""
+        self.xh = self.xf[:10]
+        self.w_hat = np.zeros(5)
+        for j, i in self.w_at:
+            self.w_hat[i] = self.xf[j]
+        self.u_unsat = np.zeros(5)
+        if self.k_pd is not None:
+            self.u_unsat = -self.k_pd @ self.xh
+        else:
+            self.u_unsat[ACTUATED_INPUTS] = u_act
+        self.u = _saturate(self.u_unsat, self.g.u_max_v)
+
+    def update(self, y_next):
+        """Read the true state y_{k+1} (y = x): the filter's update, return u_{k+1} (saturated)."""
+        self.xf, u_act = reference_step(self.kal, self.xf, self.u[ACTUATED_INPUTS], self.c_x @ y_next)
+        self._set(u_act)
         return self.u
 
 
@@ -121,12 +168,25 @@ class _Recorder:
                          w=self.w[:n], w_hat=self.w_hat[:n], completed=completed)
 
 
-def _simulate(g, sc, k_pd, x0, step, fallen, ideal=False):
-    n_steps = int(round(sc.duration_s / g.ts_s))
+def _controller(g, sc, k_pd, x, ideal, estimator):
     xhat0 = sc.xhat0_si if sc.xhat0_si is not None else sc.x0_si
+    if estimator not in ESTIMATORS:
+        raise TipbotError("estimator %r: one of %s" % (estimator, ", ".join(ESTIMATORS)))
+    if ideal:
+        return IdealController(g, sc, x)
+    if estimator == "kalman":
+        if sc.reference_governor and k_pd is None:
+            raise TipbotError("scenario %s: the reference governor leads the paper's detector law, not the "
+                              "Kalman filter's" % sc.name)
+        return KalmanController(g, xhat0, k_pd)
+    governor = ReferenceGovernor(g, xhat0) if sc.reference_governor and k_pd is None else None
+    return HostController(g, xhat0, g.C @ x, k_pd, governor)
+
+
+def _simulate(g, sc, k_pd, x0, step, fallen, ideal=False, estimator="detector"):
+    n_steps = int(round(sc.duration_s / g.ts_s))
     x = np.array(x0, dtype=float)
-    governor = ReferenceGovernor(g, xhat0) if sc.reference_governor and k_pd is None and not ideal else None
-    ctl = IdealController(g, sc, x) if ideal else HostController(g, xhat0, g.C @ x, k_pd, governor)
+    ctl = _controller(g, sc, k_pd, x, ideal, estimator)
     pending = [np.zeros(5)] * sc.extra_delay_ticks
     rec = _Recorder(n_steps)
     for k in range(n_steps + 1):
@@ -140,18 +200,19 @@ def _simulate(g, sc, k_pd, x0, step, fallen, ideal=False):
         ctl.update(g.C @ x)
 
 
-def simulate_linear(g, sc, k_pd=None, params=None):
-    """Run a scenario on the linear model -> RunResult (SI)."""
+def simulate_linear(g, sc, k_pd=None, params=None, estimator="detector"):
+    """Run a scenario on the linear model -> RunResult (SI). estimator: "detector" (the
+    paper's) or "kalman" (the firmware's default, KalmanController)."""
     a, b = truth_linear_model(g, sc, params)
-    return _simulate(g, sc, k_pd, sc.x0_si, lambda x, u, t: a @ x + b @ u, lambda x: False)
+    return _simulate(g, sc, k_pd, sc.x0_si, lambda x, u, t: a @ x + b @ u, lambda x: False, estimator=estimator)
 
 
-def simulate_nonlinear(g, sc, k_pd=None, params=None, fall_rad=np.pi / 2, ideal=False):
+def simulate_nonlinear(g, sc, k_pd=None, params=None, fall_rad=np.pi / 2, ideal=False, estimator="detector"):
     """Run a scenario on the nonlinear plant with ideal measurement -> RunResult (SI).
 
     Stops early (completed=False) when |th1| passes fall_rad: the model means nothing once
     the robot lies on the floor. ideal: the IdealController (true state and disturbance)
-    instead of the detector.
+    instead of an estimator; estimator: as simulate_linear's.
     """
     model = RobotModel(sc.plant_variant, scaled_params(sc.param_scale, params))
     to_si = np.diag(state_scale_to_si(model.variant))
@@ -170,4 +231,4 @@ def simulate_nonlinear(g, sc, k_pd=None, params=None, fall_rad=np.pi / 2, ideal=
         plant.advance(u, t_end - t)
         return plant.x_si
 
-    return _simulate(g, sc, k_pd, sc.x0_si, step, lambda x: abs(x[2]) > fall_rad, ideal)
+    return _simulate(g, sc, k_pd, sc.x0_si, step, lambda x: abs(x[2]) > fall_rad, ideal, estimator)

@@ -1,7 +1,7 @@
 """Figures of merit of one simulated run (SI units; JSON-ready values).
 
 A run is the hostsim.sim.result.RunResult the simulators return (hostsim.sim.linear_sim,
-hostsim.sim.fil).
+hostsim.sim.firmware_run).
 """
 import math
 
@@ -9,8 +9,7 @@ import numpy as np
 
 from hostsim.sim.scenario import floor_angle_rad
 from hostsim.world.load import equilibrium_lean_rad
-from tipbot_fw.gains import ACTUATED_INPUTS
-from tipbot_fw.logfile import FLAG_BITS, SATURATION_BITS
+from tipbot_fw.vocabulary import ACTUATED_INPUTS, FLAG_BITS, SATURATION_BITS
 
 OVERRUN_BIT = FLAG_BITS["overrun"]
 

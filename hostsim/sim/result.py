@@ -1,6 +1,6 @@
 """What a simulated run returns: one record, whichever simulator ran it (SI units).
 
-hostsim.sim.linear_sim (linear and nonlinear modes) and hostsim.sim.fil (the firmware in the
+hostsim.sim.linear_sim (linear and nonlinear modes) and hostsim.sim.firmware_run (the firmware in the
 loop) fill the fields they know; the others stay None. Arrays have one row per control tick,
 row k at t_s[k] (t = 0: the release).
 """
@@ -23,11 +23,11 @@ class RunResult:
     w_hat: Optional[np.ndarray] = None   # its disturbance estimate (n x 5, V)
     u_unsat: Optional[np.ndarray] = None  # the law's output before saturation (n x 5, V)
     # The firmware in the loop only:
-    u_cmd: Optional[np.ndarray] = None   # the inputs it applied (n x 5, V)
+    u_applied: Optional[np.ndarray] = None   # the inputs it applied (n x 5, V)
     exit_code: Optional[int] = None
     stop_reason: Optional[str] = None
     header: Optional[dict] = None        # its log's header
-    flags: Optional[np.ndarray] = None   # its log's flag bits per tick (tipbot_fw.logfile.FLAG_BITS)
+    flags: Optional[np.ndarray] = None   # its log's flag bits per tick (tipbot_fw.record.logfile.FLAG_BITS)
     tick_work_s: Optional[np.ndarray] = None  # its log's tick_s: a tick's start to the end of its writes
     io_per_iteration: Optional[list] = None  # sysfs runs: the device layer's (op, path, bytes) per loop
     duty_events: Optional[list] = None   # brick worlds: (t from release, motor, duty fraction) applied

@@ -17,9 +17,9 @@ Each scenario runs in one or more ``modes`` (hostsim.studies.runner):
   input held over each tick), still with y = x: what the model's nonlinearity and the
   saturation do, without the firmware's signal chain.
 - ``firmware``: the unmodified firmware (tipbot_fw) against the nonlinear plant and the
-  sensor models (hostsim.sim.fil). Its estimate starts from the first measurement, as on the
+  sensor models (hostsim.sim.firmware_run). Its estimate starts from the first measurement, as on the
   robot (``xhat0`` does not apply), and its wheel-position origin is where the wheels stand
-  at start (see hostsim.sim.fil).
+  at start (see hostsim.sim.firmware_run).
 
 ``controllers``: ``optimal`` (LQR + detector + K_w) and/or ``pd`` (the Appendix D
 baseline of hostsim.model.pd); each mode runs once per controller.
@@ -50,8 +50,8 @@ from hostsim.model.params import REQUIRED
 from hostsim.paths import REPO_ROOT
 from tipbot_fw import config as fw_config
 from tipbot_fw import fields
-from tipbot_fw.course import CourseError, parse_course
-from tipbot_fw.plausibility import BATTERY_MAX_V, BATTERY_MIN_V
+from tipbot_fw.drive.course import CourseError, parse_course
+from tipbot_fw.guard.plausibility import BATTERY_MAX_V, BATTERY_MIN_V
 
 SCENARIO_DIR = os.path.join(REPO_ROOT, "scenarios")
 
@@ -215,7 +215,7 @@ class Brick:
 
     @property
     def ideal(self):
-        """Every effect off: today's world (hostsim.sim.fil.World)."""
+        """Every effect off: today's world (hostsim.world.lockstep.World)."""
         return self == Brick()     # sources do not compare
 
 
@@ -499,7 +499,7 @@ def _slope(f, doc, modes):
 
 
 # A course's bounds here are any robot's (tipbot_fw.gains.REFERENCE_LIMITS); the gains' own
-# limits are checked when the firmware loads it (hostsim.sim.fil), as the robot does.
+# limits are checked when the firmware loads it (hostsim.sim.firmware_run), as the robot does.
 _ANY_ROBOT = {"speed_mps": 2.0, "yaw_rate_dps": 1000.0}
 
 
@@ -571,15 +571,6 @@ def load_scenario(path):
     if not os.path.isfile(sc.gains):
         raise ScenarioError(fields.message(path, "gains", "names %s, which is no file" % sc.gains))
     return sc
-
-
-def disturbance_at(sc, t_s):
-    """The disturbance vector w (volts, 5) in force at time t_s."""
-    w = [0.0] * 5
-    for d in sc.disturbances:
-        if d.t_start_s <= t_s < d.t_end_s:
-            w = [a + b for a, b in zip(w, d.w_v)]
-    return w
 
 
 def floor_angle_rad(sc):

@@ -49,6 +49,7 @@ import numpy as np
 
 from hostsim.paths import REPO_ROOT, out_dir
 from hostsim.sim.scenario import MAX_SLOPE_DEG
+from hostsim.studies.montecarlo import FINAL_TH1_RAD, gains_document, warm_models
 from tipbot_fw.config import MAX_LOST_S, MAX_STALL_BOUNDS_S
 
 DEFAULT_GAINS = ("gains/paper.json", "gains/physical.json")
@@ -146,20 +147,18 @@ def margin_scenario(base, key, value, ts_s):
 def balances(run, floor_rad=0.0):
     """Completed with link 1's lean from the vertical within 30 degrees, ending below 0.1 rad
     (floor_rad: floor_angle_rad of the run's scenario)."""
-    from hostsim.studies.montecarlo import FINAL_TH1_RAD
     from hostsim.sim.metrics import UPRIGHT_LIMIT_RAD
     th1 = np.abs(run.x[:, 2] - floor_rad)
     return bool(run.completed and np.all(th1 < UPRIGHT_LIMIT_RAD) and th1[-1] < FINAL_TH1_RAD)
 
 
 def _gains(path):
-    from hostsim.studies.montecarlo import gains_document
     return gains_document(path, False)
 
 
 def _run(sc, gains_path, sysfs=None, keep_rows=False):
     """sysfs: through the fake EV3 tree (None: when the brick's effects need it, e.g. a stall)."""
-    from hostsim.sim.fil import run_firmware
+    from hostsim.sim.firmware_run import run_firmware
     sysfs = sc.brick.needs_sysfs if sysfs is None else sysfs
     return run_firmware(sc, gains_doc=_gains(gains_path), sysfs=sysfs, keep_rows=keep_rows)
 
@@ -263,7 +262,6 @@ def run_margins(gains_paths=DEFAULT_GAINS, coarse=False, ablation_gains=None, jo
     duration_s: other than the scenario's 30 s (for quick looks and tests only)."""
     from hostsim.sim.parallel import default_jobs, run_tasks
     from hostsim.sim.scenario import Brick, load_scenario
-    from hostsim.studies.montecarlo import warm_models
 
     realistic = load_scenario(BASE_SCENARIO)
     if duration_s is not None:
@@ -392,7 +390,7 @@ def write(res, out):
     os.makedirs(out, exist_ok=True)
     with open(os.path.join(out, "margins.json"), "w") as f:
         json.dump(res, f, indent=1, sort_keys=True)
-    return plots.margins_figure(res, os.path.join(out, "margins.png"))
+    return plots.margins_figure(res, os.path.join(out, "margins.png"), MARGINS)
 
 
 def main(argv=None):

@@ -41,6 +41,7 @@ from hostsim.model.gains import with_law
 from hostsim.model.params import MOTOR_ROLES
 from hostsim.paths import REPO_ROOT, out_dir
 from hostsim.studies.stats import distribution, trio
+from tipbot_fw.gains import load_gains_document
 
 GEOMETRY = ("m1_kg", "m2_kg", "m3_kg", "mw_kg", "l1_m", "l2_m", "l3_m", "rw_m", "track_m",
             "j1_kg_m2", "j2_kg_m2", "j3_kg_m2", "jw_kg_m2") + tuple(r + "_jm_kg_m2" for r in MOTOR_ROLES)
@@ -137,8 +138,7 @@ def gains_document(path, zero_kw):
     """The gains document of a file, with K_w zeroed on request (cached per process)."""
     key = (path, zero_kw)
     if key not in _DOCS:
-        with open(path) as f:
-            doc = json.load(f)
+        doc = load_gains_document(path)[0]
         if zero_kw:
             doc = with_law(doc, k_w=np.zeros((5, 5)), note=" + K_w = 0")
         _DOCS[key] = doc
@@ -149,7 +149,7 @@ def run_one(task):
     """Worker: one Monte Carlo run -> a JSON-ready row (with the figures of the perfect-
     measurement run of the same robot: hostsim.sim.linear_sim.IdealController)."""
     from hostsim.sim import metrics
-    from hostsim.sim.fil import run_firmware
+    from hostsim.sim.firmware_run import run_firmware
     from hostsim.sim.linear_sim import simulate_nonlinear
     from tipbot_fw.gains import gains_from_dict
 

@@ -395,13 +395,13 @@ def montecarlo_figure(results, path, what="parameter, sensor and timing uncertai
     return _write(fig, path)
 
 
-def margins_figure(res, path):
-    """One panel per effect: the largest value each gains file balances with (each sign where
-    there are two; a triangle: at least that, the search's end), the realistic brick's dashed."""
-    from hostsim.studies.margins import MARGINS
+def margins_figure(res, path, margins):
+    """One panel per effect of ``margins`` (hostsim.studies.margins.MARGINS): the largest value
+    each gains file balances with (each sign where there are two; a triangle: at least that, the
+    search's end), the realistic brick's dashed."""
     labels = sorted({r["gains"] for r in res["margins"]})
-    fig, axes = plt.subplots(1, len(MARGINS), figsize=(2.4 * len(MARGINS), 3.4))
-    for ax, m in zip(axes, MARGINS):
+    fig, axes = plt.subplots(1, len(margins), figsize=(2.4 * len(margins), 3.4))
+    for ax, m in zip(axes, margins):
         names, values, beyond = [], [], []
         for label in labels:
             for r in sorted((r for r in res["margins"] if r["gains"] == label and r["effect"] == m.key),

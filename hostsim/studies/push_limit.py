@@ -68,11 +68,9 @@ def load_design(gains_path, u_max_v=None):
     """-> dict: the gains' discrete model (SI), the law, the input limit and the push direction."""
     from hostsim.model.equations import RobotModel, state_scale_to_si
     from hostsim.world.plant import link_push_impulse
-    from tipbot_fw import fields
-    from tipbot_fw.gains import GainsError, gains_from_dict
+    from tipbot_fw.gains import load_gains_document
 
-    doc, _ = fields.read_json(gains_path, GainsError)
-    g = gains_from_dict(doc, gains_path)
+    doc, g = load_gains_document(gains_path)
     model = RobotModel(doc["model_variant"], doc["parameters"])
     q = np.zeros(5)
     x_push = np.zeros(10)
@@ -327,7 +325,7 @@ def main(argv=None):
     ap.add_argument("--u-max-v", type=float, default=None,
                     help="the input limit in V (default: each gains file's u_max_v)")
     ap.add_argument("--validate", action="store_true",
-                    help="also track the LP's plan on the nonlinear physical plant at %g %% of the bound"
+                    help="also track the LP's plan on the nonlinear physical plant at %g %%%% of the bound"
                     % (100 * VALIDATE_FRACTION))
     ap.add_argument("--out", default=out_dir("push_limit"), help="output directory (default out/push_limit)")
     args = ap.parse_args(argv)

@@ -50,7 +50,7 @@ def recovered(run):
 
 def trial(base, gains_path, zero_kw, mode, angle, value):
     """One release from `angle` = value: recovered or not."""
-    from hostsim.sim.fil import run_firmware
+    from hostsim.sim.firmware_run import run_firmware
     from hostsim.sim.linear_sim import simulate_nonlinear
     from hostsim.studies.montecarlo import gains_document
 

@@ -68,7 +68,7 @@ def draw(rng, base):
 def stands(params, gains_doc, duration_s, seed):
     """The realistic brick's stand of duration_s on the robot of params with gains_doc -> (ok, why)."""
     import dataclasses
-    from hostsim.sim.fil import run_firmware
+    from hostsim.sim.firmware_run import run_firmware
     from hostsim.sim.scenario import load_scenario
     sc = load_scenario("brick_realistic")
     sc = dataclasses.replace(sc, duration_s=float(duration_s), seed=int(seed))

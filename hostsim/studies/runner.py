@@ -14,14 +14,26 @@ import numpy as np
 
 from hostsim.sim import metrics as metrics_mod
 from hostsim.sim.metrics import STATE_UNIT_GROUPS
-from hostsim.sim.fil import pd_gains_document, run_firmware
-from hostsim.sim.linear_sim import simulate_linear, simulate_nonlinear
+from hostsim.sim.firmware_build import pd_gains_document
+from hostsim.sim.firmware_run import run_firmware
+from hostsim.sim.linear_sim import ESTIMATORS, simulate_linear, simulate_nonlinear
 from hostsim.model.pd import pd_for_gains
-from tipbot_fw.gains import load_gains
+from tipbot_fw.gains import load_gains, load_gains_document
 
 
-def run_scenario(sc, modes=None, sysfs=True, say=None):
-    """-> (Gains, {label: RunResult}) for every mode x controller of the scenario."""
+def run_label(label, host_estimator):
+    """A run's label (mode/controller) with the linear and nonlinear modes' estimator when it is
+    not the paper's detector: nonlinear-kalman/optimal."""
+    mode, controller = label.split("/")
+    if mode == "firmware" or host_estimator == "detector":
+        return label
+    return "%s-%s/%s" % (mode, host_estimator, controller)
+
+
+def run_scenario(sc, modes=None, sysfs=True, say=None, host_estimator="detector"):
+    """-> (Gains, {label: RunResult}) for every mode x controller of the scenario.
+    host_estimator: the linear and nonlinear modes' ("detector", the paper's; "kalman", the
+    firmware's default: their labels then read linear-kalman/..., nonlinear-kalman/...)."""
     gs = load_gains(sc.gains)
     runs = {}
     for controller in sc.controllers:
@@ -29,25 +41,20 @@ def run_scenario(sc, modes=None, sysfs=True, say=None):
         # x_file = S x_SI, so a gain on the file's state is K_file S on the SI one
         k_pd = None if k_pd_file is None else k_pd_file * gs.state_scale[None, :]
         for mode in modes or sc.modes:
-            label = "%s/%s" % (mode, controller)
+            label = run_label("%s/%s" % (mode, controller), host_estimator)
             t0 = time.perf_counter()
             if mode == "linear":
-                run = simulate_linear(gs, sc, k_pd)
+                run = simulate_linear(gs, sc, k_pd, estimator=host_estimator)
             elif mode == "nonlinear":
-                run = simulate_nonlinear(gs, sc, k_pd)
+                run = simulate_nonlinear(gs, sc, k_pd, estimator=host_estimator)
             else:
-                doc = None if k_pd_file is None else pd_gains_document(_document(sc.gains), k_pd_file)
+                doc = None if k_pd_file is None else pd_gains_document(load_gains_document(sc.gains)[0], k_pd_file)
                 # the brick's timing and mode writes act through the fake EV3 tree only
                 run = run_firmware(sc, gains_doc=doc, sysfs=sysfs or sc.brick.needs_sysfs)
             run = runs[label] = dataclasses.replace(run, wall_s=time.perf_counter() - t0)
             if say:
                 say("  %-20s %6.2f s simulated in %5.2f s" % (label, run.t_s[-1], run.wall_s))
     return gs, runs
-
-
-def _document(path):
-    with open(path) as f:
-        return json.load(f)
 
 
 def ideal_metrics(sc, gs):
@@ -71,12 +78,13 @@ def scenario_metrics(sc, gs, runs):
     return out
 
 
-def run_and_write(sc, out_dir, modes=None, sysfs=True, plots=True, say=None):
+def run_and_write(sc, out_dir, modes=None, sysfs=True, plots=True, say=None, host_estimator="detector"):
     """Run, write DIR/metrics.json (+ PNGs and runs.npz); -> the metrics document."""
     os.makedirs(out_dir, exist_ok=True)
-    gs, runs = run_scenario(sc, modes, sysfs, say)
+    gs, runs = run_scenario(sc, modes, sysfs, say, host_estimator)
     per_run = scenario_metrics(sc, gs, runs)
-    expect_report, ok = metrics_mod.check_expectations(per_run, sc.expect)
+    expect = {run_label(label, host_estimator): bounds for label, bounds in sc.expect.items()}
+    expect_report, ok = metrics_mod.check_expectations(per_run, expect)
     doc = {
         "scenario": sc.name,
         "description": sc.description,
@@ -166,6 +174,9 @@ def main(argv=None):
     ap.add_argument("--device", choices=("sysfs", "memory"), default="sysfs",
                     help="firmware device layer: the fake EV3 sysfs tree (default) or in-memory")
     ap.add_argument("--no-plots", action="store_true", help="write metrics.json and runs.npz only")
+    ap.add_argument("--host-estimator", choices=ESTIMATORS, default="detector",
+                    help="the estimator of the linear and nonlinear modes: the paper's detector (default) or the "
+                         "firmware's default, the Kalman filter (its runs labelled linear-kalman/..., nonlinear-kalman/...)")
     args = ap.parse_args(argv)
     try:
         sc = load_scenario(args.scenario)
@@ -177,7 +188,7 @@ def main(argv=None):
                 raise TipbotError("--modes: %r is not a mode of scenario %s (%s)" % (bad[0], sc.name, ", ".join(sc.modes)))
         out = args.out or out_dir("run", sc.name)
         doc = run_and_write(sc, out, modes, sysfs=args.device == "sysfs", plots=not args.no_plots,
-                            say=lambda m: print(m, file=sys.stderr))
+                            say=lambda m: print(m, file=sys.stderr), host_estimator=args.host_estimator)
     except TipbotError as exc:
         print("error: %s" % exc, file=sys.stderr)
         return 2

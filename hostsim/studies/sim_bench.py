@@ -20,7 +20,7 @@ import hostsim
 
 
 def _time_run(sc, sysfs, repeat, doc):
-    from hostsim.sim.fil import run_firmware
+    from hostsim.sim.firmware_run import run_firmware
     best = None
     for _ in range(repeat):
         t0 = time.perf_counter()

@@ -83,7 +83,7 @@ def firmware_note(docs, mc):
     estimator = defaults()["estimator"]
     lines = ["The firmware runs its default estimator, %s; the linear and nonlinear modes run the paper's law "
              "(the Section 6 detector fed the exact state)." % (
-                 "the Kalman filter (tipbot_fw.kalman: it measures what the sensors measure and estimates the "
+                 "the Kalman filter (tipbot_fw.cores.kalman: it measures what the sensors measure and estimates the "
                  "wheels' input disturbances and the gyro bias)" if estimator == "kalman" else
                  "the paper's detector on the firmware's signal chain")]
     fell = [(d["scenario"], l) for d in docs for l, m in d["runs"].items()
@@ -120,6 +120,10 @@ def main(argv=None):
                     "and the margins")
     ap.add_argument("--no-margins", action="store_true", help="skip the margins and the effects' costs")
     ap.add_argument("--jobs", type=int, default=None, help="worker processes (default: all cores)")
+    ap.add_argument("--host-estimator", choices=("detector", "kalman"), default="detector",
+                    help="the linear and nonlinear runs' estimator: the paper's detector (default, the paper's "
+                         "simulation) or the firmware's default, the Kalman filter, to compare the firmware's "
+                         "runs with it (make sim SIM_ARGS='--host-estimator kalman')")
     args = ap.parse_args(argv)
     final = args.out
     # the new report is made beside the old one and swapped in at the end: an interrupted or
@@ -168,7 +172,7 @@ def _study(args, final):
             sc = load_scenario(name)
             say("scenario %s" % name)
             docs.append(runner.run_and_write(sc, os.path.join(args.out, sc.name), sysfs=args.device == "sysfs",
-                                             say=say))
+                                             say=say, host_estimator=args.host_estimator))
         return docs
 
     docs = run_all(args.scenarios)

@@ -5,7 +5,7 @@ sensor attribute costs less; interrupts take about 14 % of the CPU and a kernel 
 another 20 % with the gyro plugged in (../shared/ev3-hardware.md). In the lock-step
 simulation time only moves when someone moves it, so here:
 
-- :class:`TimedIO` stands between the firmware's device layer (tipbot_fw.ev3io, which takes
+- :class:`TimedIO` stands between the firmware's device layer (tipbot_fw.io.ev3dev, which takes
   an ``io`` with the API of :mod:`os`) and the fake EV3's :class:`CountingIO`. Every pread
   and pwrite advances the virtual clock by a sampled access time; the value a read returns
   is the world's at the middle of its access, and a duty reaches the motor at the middle of
@@ -17,7 +17,7 @@ simulation time only moves when someone moves it, so here:
   still holds the CPU, and now and then a multi-tick stall (an SD card write, a burst of
   kernel work) holds everything.
 - Every duration is stretched by 1 / (1 - cpu_steal): the interrupts' share of the CPU.
-- The brick's lights and speaker (tipbot_fw.feedback: a LED's ``brightness``, a tone event on
+- The brick's lights and speaker (tipbot_fw.io.lights_speaker: a LED's ``brightness``, a tone event on
   the sound input device), written in the loop's slack after the duties, cost what a sensor
   access does: a small attribute write, mostly the Python call (3,800 and 7,300 ARMv5
   instructions on the virtual brick, docs/benchmarks.md), little kernel work. So they take brick time
@@ -29,7 +29,7 @@ the accesses are timed, and fails with ETIMEDOUT on a stuck sensor.
 import math
 import os
 
-from tipbot_fw.clock import VirtualClock
+from tipbot_fw.io.clock import VirtualClock
 
 _BLOCK = 4096
 

@@ -33,8 +33,8 @@ import numpy as np
 
 from hostsim.model import fastdyn
 from hostsim.world.plant import Plant
-from tipbot_fw.config import MOTOR_ROLES
-from tipbot_fw.gains import ACTUATED_INPUTS
+from tipbot_fw.vocabulary import MOTOR_ROLES
+from tipbot_fw.vocabulary import ACTUATED_INPUTS
 
 # A locked motor whose load moves faster than this (a push) is no longer stuck; below it a
 # speed is round-off of the projection that locked it.

@@ -1,4 +1,4 @@
-"""A fake EV3 sysfs tree on disk, for python-ev3dev2 and tipbot_fw.ev3io.Ev3Devices.
+"""A fake EV3 sysfs tree on disk, for python-ev3dev2 and tipbot_fw.io.ev3dev.Ev3Devices.
 
 The tree has the ev3dev-stretch layout and attribute formats::
 
@@ -6,7 +6,7 @@ The tree has the ev3dev-stretch layout and attribute formats::
     ROOT/lego-sensor/sensor0/   address (ev3-ports:in2), driver_name (lego-ev3-gyro), mode, bin_data, ...
     ROOT/power_supply/lego-ev3-battery/voltage_now   (microvolts)
     ROOT/board-info/board0/uevent
-    ROOT/leds/led0:red:brick-status/brightness, ...   (the status lights: tipbot_fw.feedback.LEDS)
+    ROOT/leds/led0:red:brick-status/brightness, ...   (the status lights: tipbot_fw.io.lights_speaker.LEDS)
     ROOT/input-by-path/platform-sound-event         (the speaker's input device, a plain file here)
 
 Clients point at ROOT (``ev3dev2.Device.DEVICE_ROOT_PATH = fake.sysfs_root`` or
@@ -48,7 +48,7 @@ writer may see half of each. So:
 Counting and failure injection
 ------------------------------
 :class:`CountingIO` has the ``open/pread/pwrite/write/close`` API of :mod:`os` (what Ev3Devices
-and the lights and speaker of tipbot_fw.feedback take as ``io``), counts calls per path and can make chosen calls raise ``OSError``; ``fake.io`` is one
+and the lights and speaker of tipbot_fw.io.lights_speaker take as ``io``), counts calls per path and can make chosen calls raise ``OSError``; ``fake.io`` is one
 bound to this tree. It is an in-process add-on only: the files remain the truth.
 """
 
@@ -60,7 +60,7 @@ import struct
 import tempfile
 from collections import Counter, namedtuple
 
-from tipbot_fw import feedback
+from tipbot_fw.io import lights_speaker
 
 #: Size of every fake-owned text record (value + "\n" + space padding) and of bin_data.
 RECORD_BYTES = 32
@@ -90,7 +90,7 @@ GYRO_MODE_NAMES = tuple(name for name, _, _ in GYRO_MODES)
 #: Modes whose value0 is the angle: entering one restarts the angle from 0, as the sensor does.
 _ANGLE_MODES = ('GYRO-ANG', 'GYRO-G&A')
 #: After a mode switch the UART sensor keeps sending the previous mode's messages until it has
-#: switched (tipbot_fw.ev3io; ev3dev waits for new-mode data up to 50 ms per try): for this
+#: switched (tipbot_fw.io.ev3dev; ev3dev waits for new-mode data up to 50 ms per try): for this
 #: long after the switch the fake keeps the previous mode's record in bin_data and value<N>.
 GYRO_MODE_SWITCH_S = 0.05
 #: A mode write waits for data in the new mode: 10 tries of 50 ms, then ETIMEDOUT
@@ -212,7 +212,7 @@ class CountingIO(object):
         return os.pwrite(fd, data, offset)
 
     def write(self, fd, data):
-        """write(2), for what has no offset (the speaker's input device: tipbot_fw.feedback)."""
+        """write(2), for what has no offset (the speaker's input device: tipbot_fw.io.lights_speaker)."""
         rel = self.open_fds.get(fd, '<fd %d>' % fd)
         self.writes += 1
         self.by_path[('write', rel)] += 1
@@ -468,7 +468,7 @@ class FakeEV3(object):
 
     def _make_lights(self):
         self._lights = []
-        for _, _, name in feedback.LEDS:
+        for _, _, name in lights_speaker.LEDS:
             led = _Device(name, 'leds-pwm', os.path.join(self.sysfs_root, 'leds', name))
             os.makedirs(led.path)
             self._add(led, 'brightness', '0', _RW)
@@ -479,7 +479,7 @@ class FakeEV3(object):
     def _make_speaker(self):
         """The speaker's input device: the firmware appends struct input_event records (one
         tone event each); kept whole, so a test hears every note and when it started."""
-        path = feedback.sound_device(self.sysfs_root)
+        path = lights_speaker.sound_device(self.sysfs_root)
         os.makedirs(os.path.dirname(path))
         fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_EXCL, 0o660)
         self._fds.append(fd)
@@ -736,17 +736,17 @@ class FakeEV3(object):
                 on.append(1 if int(_first_line(raw)) > 0 else 0)
             except ValueError:
                 on.append(0)
-        return {'left': feedback.COLOR_NAMES[tuple(on[0:2])], 'right': feedback.COLOR_NAMES[tuple(on[2:4])]}
+        return {'left': lights_speaker.COLOR_NAMES[tuple(on[0:2])], 'right': lights_speaker.COLOR_NAMES[tuple(on[2:4])]}
 
     def tones(self, start=0):
         """[(t_s, Hz)] of the tone events written to the speaker so far, from the start-th on
-        (0 Hz: silence); t_s is the writer's clock (tipbot_fw.feedback writes time.monotonic())."""
-        size = feedback.INPUT_EVENT.size
+        (0 Hz: silence); t_s is the writer's clock (tipbot_fw.io.lights_speaker writes time.monotonic())."""
+        size = lights_speaker.INPUT_EVENT.size
         data = os.pread(self._speaker_fd, 1 << 24, start * size)
         out = []
         for at in range(0, len(data) - size + 1, size):
-            sec, usec, kind, code, value = feedback.INPUT_EVENT.unpack_from(data, at)
-            if kind == feedback.EV_SND and code == feedback.SND_TONE:
+            sec, usec, kind, code, value = lights_speaker.INPUT_EVENT.unpack_from(data, at)
+            if kind == lights_speaker.EV_SND and code == lights_speaker.SND_TONE:
                 out.append((sec + usec * 1e-6, value))
         return out
 

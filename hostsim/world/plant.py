@@ -220,6 +220,16 @@ def link_push_impulse(model, q, link, impulse_n_s):
     return [impulse_n_s * v for v in j]
 
 
+def disturbance_at(sc, t_s):
+    """The disturbance vector w (volts, 5) a scenario (hostsim.sim.scenario.Disturbance) has in
+    force at time t_s."""
+    w = [0.0] * 5
+    for d in sc.disturbances:
+        if d.t_start_s <= t_s < d.t_end_s:
+            w = [a + b for a, b in zip(w, d.w_v)]
+    return w
+
+
 def apply_push(plant, push):
     """A scenario push (hostsim.sim.scenario.Push) on the plant, now."""
     if push.impulse_n_s is None:

@@ -1,6 +1,6 @@
 """Sensor models: the plant's state -> the raw integers the EV3 devices would report.
 
-Raw means what tipbot_fw.devices passes on untouched: encoder counts as each encoder counts
+Raw means what tipbot_fw.io.devices passes on untouched: encoder counts as each encoder counts
 them, the gyro in its own frame. The signal chain undoes the mounting with the configured
 polarities and gyro sign, so ``motor_signs`` and ``gyro_sign`` here are the physical facts those
 config fields must match.
@@ -141,16 +141,19 @@ class EncoderModel(object):
 
 
 class BatteryModel(object):
-    """The battery under the motors' load, as ``voltage_now`` reports it.
+    """The battery under the motors' load, as ``voltage_now`` reports it: the one battery model
+    of the simulated worlds (the balancing robot's, hostsim.world.lockstep, and the
+    identification bench's, hostsim.sim.motor_sim).
 
     The H-bridges draw, from the battery, each motor's current times its duty, and the motor's
-    current is (duty x V - Ke omega) / Ra; with the internal resistance r the terminal
-    voltage V solves V = V_oc - r sum(d_i (d_i V - Ke_i omega_i) / Ra_i), i.e.
-    V = (V_oc + r sum(d_i Ke_i omega_i / Ra_i)) / (1 + r sum(d_i^2 / Ra_i)). The reading is
-    quantized down to ``quantum_v`` (2.44 mV steps of the ADC)."""
+    current is (duty x V - Ke omega) / Ra; the brick itself draws ``idle_a``; with the internal
+    resistance r the terminal voltage V solves V = V_oc - r (idle_a + sum(d_i (d_i V - Ke_i
+    omega_i) / Ra_i)), i.e. V = (V_oc - r idle_a + r sum(d_i Ke_i omega_i / Ra_i)) / (1 + r
+    sum(d_i^2 / Ra_i)). The reading is quantized down to ``quantum_v`` (2.44 mV steps of the
+    ADC)."""
 
-    def __init__(self, v_oc, r_ohm=0.0, quantum_v=0.0, ke_v_s=(0.0,) * 4, ra_ohm=(1.0,) * 4):
-        self.v_oc = float(v_oc)
+    def __init__(self, v_oc, r_ohm=0.0, quantum_v=0.0, ke_v_s=(0.0,) * 4, ra_ohm=(1.0,) * 4, idle_a=0.0):
+        self.v_oc = float(v_oc) - float(r_ohm) * float(idle_a)      # the source the motors see
         self.r = float(r_ohm)
         self.quantum = float(quantum_v)
         self.ke_ra = [k / r for k, r in zip(ke_v_s, ra_ohm)]
@@ -166,6 +169,11 @@ class BatteryModel(object):
             num += self.r * d * kr * w
             den += self.r * d * d * ir
         return num / den
+
+    def source(self, duty):
+        """What one motor driven at this duty fraction sees, the other motors idle: a source of
+        duty x (V_oc - r idle_a) volts behind r duty^2 ohms more than its own Ra (Thevenin)."""
+        return duty * self.v_oc, self.r * duty * duty
 
     def reading(self, volts):
         if self.quantum:

@@ -1,7 +1,7 @@
 """The drive plan: a course's timed commands -> the wheels' reference for every tick, made before
 the run.
 
-A course (tipbot_fw.course) is a list of segments (forward speed, yaw rate, duration) from the
+A course (tipbot_fw.drive.course) is a list of segments (forward speed, yaw rate, duration) from the
 let-go cue (tick 0); after its last one the commands are zero and the robot comes to rest. Each
 change of command is not followed as a step: each channel (forward speed v, yaw rate w) goes
 from the old value to the new one along a smoothstep,
@@ -18,20 +18,20 @@ exact integrals, the wheels
     d_r = s + psi H/2,   d_l = s - psi H/2     (H: the track)
 
 and their speeds and accelerations likewise, as the core's six integers per tick (positions in
-1/REF_POS_STEPS of a count, the rest in 2^-16 SI: tipbot_fw.kalman).
+1/REF_POS_STEPS of a count, the rest in 2^-16 SI: tipbot_fw.cores.kalman).
 
 Why before the run: on the brick's soft-float CPU a profile computed in the tick costs about
 30,000 instructions, more than half the tick's budget; made with numpy before the calibration
 (about 0.1 s for a minute of course), a tick only copies its 48 bytes. A stall's periods are
 skipped through (KalmanCore.skip): the reference keeps to the clock, as the course's times do.
-A run follows the plan through tipbot_fw.pathfollow, which corrects its rows from the robot's
+A run follows the plan through tipbot_fw.drive.pathfollow, which corrects its rows from the robot's
 pose in the plane. Python 3.5, numpy 1.12.
 """
 import math
 
 import numpy as np
 
-from tipbot_fw.course import channel_limits, transition_s
+from tipbot_fw.drive.course import channel_limits, transition_s
 
 
 def smoothstep(x, dv, T):

@@ -1,8 +1,9 @@
-"""The world of a firmware-in-the-loop run on an unkind brick (a scenario's ``brick`` effects).
+"""The worlds of a firmware-in-the-loop run (hostsim.sim.firmware_run): the plant, the sensors and
+the fake EV3, advanced by the firmware's clock whenever its loop sleeps.
 
-hostsim.sim.fil.World is today's world: reads at the tick's start, all duties together
-``io_latency_s`` later, ideal sensors and motors. :class:`BrickWorld` runs the same plant on a
-fixed 1 ms grid (k * dt from the start of the run) and adds what the scenario's ``brick``
+:class:`World` is the ideal brick's: reads at the tick's start, all duties together
+``io_latency_s`` later, ideal sensors and motors. :class:`BrickWorld` (a scenario's ``brick``
+effects) runs the same plant on a fixed 1 ms grid (k * dt from the start of the run) and adds what the scenario's ``brick``
 switches on:
 
 - the drivetrain (hostsim.world.drivetrain: rotors, Coulomb friction, backlash), encoders
@@ -29,10 +30,11 @@ devices ``calibration_reads`` times).
 """
 import numpy as np
 
-from hostsim.sim.scenario import disturbance_at
-from hostsim.world.plant import apply_push
-from tipbot_fw.gains import ACTUATED_INPUTS
+from hostsim.world.plant import apply_push, disturbance_at
+from tipbot_fw.vocabulary import ACTUATED_INPUTS
 
+DEFAULT_IO_LATENCY_S = 0.002
+PLANT_DT_S = 0.001
 _EPS_S = 1e-9
 
 
@@ -61,6 +63,100 @@ class Lockstep(object):
     def _record(self, t):
         self.log_t.append(t - self.t_release_s)
         self.log_x.append(self.plant.x_si)
+
+
+class World(Lockstep):
+    """Plant + sensors (+ fake EV3), advanced by the firmware's clock."""
+
+    def __init__(self, sc, plant, sensors, ts_s, t_release_s, fake=None, io_latency_s=DEFAULT_IO_LATENCY_S,
+                 rng=None):
+        self.sc = sc
+        self.plant = plant
+        self.sensors = sensors
+        self.ts_s = ts_s
+        self.t_release_s = t_release_s
+        self.fake = fake
+        self.io_latency_s = io_latency_s
+        self.rng = rng
+        self.devices = None                     # MemoryDevices, when not on the fake
+        self.ports = None                       # fake EV3 motor ports, in MOTOR_ROLES order
+        self.battery_v = sc.sensors.battery_v
+        self.pushes = sorted(((t_release_s + p.t_s, p) for p in sc.pushes), key=lambda tp: tp[0])
+        edges = {t for d in sc.disturbances for t in (d.t_start_s, d.t_end_s)}
+        self.breaks = sorted({t_release_s + t for t in edges} | {t for t, _ in self.pushes})
+        self.delay = [np.zeros(5)] * sc.extra_delay_ticks
+        self.v_prev = np.zeros(5)
+        self.readings = None
+        self.log_t, self.log_x, self.log_u, self.log_w = [], [], [], []
+        self.released = False
+        self.io_marks = []
+        self.clock = None
+        self.publish(0.0)
+
+    # -- what the firmware sees
+    def publish(self, t_s):
+        x = self.plant.x_si
+        enc, gyro, volts = self.sensors.read(x, t_s)
+        self.readings = (enc, gyro)
+        if self.fake is not None:
+            self.fake.poll(t_s)   # client writes (mode, commands) take effect before the next read
+            self.fake.set_readings(enc, gyro, volts)
+
+    def read(self):
+        """MemoryDevices source: the readings published at the current time."""
+        return self.readings
+
+    def battery_reading(self):
+        return self.battery_v
+
+    # -- what the firmware commands
+    def duties(self):
+        if self.fake is not None:
+            states = self.fake.poll()
+            return [states[p].duty if states[p].running else 0 for p in self.ports]
+        return self.devices.duties
+
+    def motor_volts(self):
+        v = np.zeros(5)
+        signs = self.sensors.motor_signs
+        scale = self.battery_v / 100.0
+        for i, d in enumerate(self.duties()):
+            v[ACTUATED_INPUTS[i]] = signs[i] * d * scale
+        return v
+
+    # -- time
+    def on_sleep(self, t_from, t_to):
+        if t_to <= self.t_release_s + _EPS_S:          # held still while calibrating
+            self.publish(t_to)
+            return
+        t_from, t_to = self._wake(t_from, t_to, PLANT_DT_S)
+        self.delay.append(self.motor_volts())
+        v_new = self.delay.pop(0)
+        t_switch = min(t_from + self.io_latency_s, t_to)
+        self._integrate(t_from, t_switch, self.v_prev)
+        self._integrate(t_switch, t_to, v_new)
+        self.v_prev = v_new
+        self.log_u.append(v_new)
+        self.log_w.append(self._w(t_switch, t_to))
+        self._record(t_to)
+        self.publish(t_to)
+
+    def _w(self, t0, t1):
+        # The disturbance over a piece without edges: sampled mid-piece, so rounding of the
+        # absolute times cannot pick the neighbouring value.
+        return np.array(disturbance_at(self.sc, 0.5 * (t0 + t1) - self.t_release_s))
+
+    def _integrate(self, t0, t1, volts):
+        while t1 - t0 > 1e-12:
+            while self.pushes and self.pushes[0][0] <= t0 + _EPS_S:
+                apply_push(self.plant, self.pushes.pop(0)[1])
+            t_end = t1
+            for b in self.breaks:
+                if t0 + _EPS_S < b < t_end - _EPS_S:
+                    t_end = b
+                    break
+            self.plant.advance(volts + self._w(t0, t_end), t_end - t0)
+            t0 = t_end
 
 
 class BrickWorld(Lockstep):

@@ -5,7 +5,7 @@ round(100 u / battery_v) at +-dlim with dlim = min(100, round(100 u_max_v / batt
 rounding is monotonic (and symmetric: Python rounds half to even). The applied input, which the
 detector is fed next tick, is duty * battery_v / 100.
 
-The core folds 100 / battery_v and the motor polarities into its matrix (tipbot_fw.core), so the
+The core folds 100 / battery_v and the motor polarities into its matrix (tipbot_fw.cores.core), so the
 per-tick work here is rounding and clipping 4 numbers: scalar Python, several times cheaper on the
 brick than np.clip.
 """

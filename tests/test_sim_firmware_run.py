@@ -15,7 +15,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from hostsim.sim.fil import run_firmware
+from hostsim.sim.firmware_run import run_firmware
 from hostsim.sim.linear_sim import simulate_linear
 from hostsim.studies.montecarlo import gains_document
 from hostsim.sim.scenario import Disturbance, Push, load_scenario
@@ -83,9 +83,10 @@ def test_a_ctrl_c_during_a_firmware_run_ends_the_host_job(monkeypatch):
     # (make sim) must end too, not go on to its next run
     import os
     import signal
-    from hostsim.sim import fil
+    from hostsim.sim import firmware_run
     from hostsim.sim.scenario import load_scenario
-    real = fil.World.on_sleep
+    from hostsim.world.lockstep import World
+    real = World.on_sleep
     calls = []
 
     def on_sleep(self, t_from, t_to):
@@ -93,7 +94,25 @@ def test_a_ctrl_c_during_a_firmware_run_ends_the_host_job(monkeypatch):
         if len(calls) == 300:
             os.kill(os.getpid(), signal.SIGINT)
         return real(self, t_from, t_to)
-    monkeypatch.setattr(fil.World, "on_sleep", on_sleep)
+    monkeypatch.setattr(World, "on_sleep", on_sleep)
     with pytest.raises(KeyboardInterrupt):
-        fil.run_firmware(load_scenario("section8"), sysfs=False)
+        firmware_run.run_firmware(load_scenario("section8"), sysfs=False)
     assert 300 <= len(calls) < 2000       # it stopped soon after the signal, not at the run's end
+
+
+def test_the_world_lets_go_where_the_sessions_own_timing_says():
+    # the session records its calibration's end and its loop's start in the log's header; the
+    # read-back refuses a world that let go outside them (the lock-step broken)
+    import types
+    from hostsim.sim.firmware_build import SimulationError
+    from hostsim.sim.firmware_readback import check_timing
+    from hostsim.sim.scenario import load_scenario
+    run = run_firmware(load_scenario("section7"), sysfs=False, keep_rows=False)
+    timing = run.header["timing"]
+    assert timing["calibration_start_s"] < timing["calibration_end_s"] <= timing["loop_start_s"]
+    assert timing["calibration_end_s"] == pytest.approx(1.095, abs=1e-9)      # 0.1 s settle + 1 s at 5 ms
+    world = types.SimpleNamespace(released=True, t_release_s=timing["calibration_end_s"])
+    check_timing(world, run.header, 0.005)
+    world.t_release_s = timing["calibration_end_s"] - 0.005       # a tick early: the calibration saw it move
+    with pytest.raises(SimulationError, match="let go at"):
+        check_timing(world, run.header, 0.005)

@@ -1,6 +1,6 @@
 """Following a course in the plane: the wheels' reference corrected from the robot's pose.
 
-The law tracks each wheel's reference (tipbot_fw.kalman). Tracking both wheels is tracking the
+The law tracks each wheel's reference (tipbot_fw.cores.kalman). Tracking both wheels is tracking the
 path only while the robot's heading is the reference's: a robot some centimetres behind when the
 course turns in place makes those centimetres up along the NEW heading (each side of a square
 comes out short or long by the last one's lag, and the path beside the reference by as much).
@@ -21,9 +21,9 @@ other way). Each offset moves to its new value at most
 at SLEW (a step in the reference would be a jolt to the lean). When the robot follows exactly,
 both are zero and the rows are the course's own.
 
-The rows are made in the slack as a remote's are (tipbot_fw.remote: a deque the core takes one
+The rows are made in the slack as a remote's are (tipbot_fw.drive.remote: a deque the core takes one
 row a tick from, KalmanCore.set_live, LOOKAHEAD_TICKS ahead), from the course's plan made
-before the run (tipbot_fw.drive); the log records the rows the core got, so a replay is exact.
+before the run (tipbot_fw.drive.plan); the log records the rows the core got, so a replay is exact.
 
 Python 3.5, numpy 1.12.
 """
@@ -33,7 +33,7 @@ import math
 
 import numpy as np
 
-from tipbot_fw.kalman import REF, ref_rows
+from tipbot_fw.cores.kalman import REF, ref_rows
 
 UPDATE_TICKS = 20           # the pose compared every 20 ticks (10 Hz at 5 ms): well above the offsets' rate
 # rows made ahead of the ticks: refilled to LOOKAHEAD_TICKS once fewer than REFILL_BELOW are left,
@@ -99,10 +99,10 @@ def _slew(value, target, step):
 
 def follow_course(gains, core, course, ahead=None):
     """A Kalman core (with these gains) set to drive `course` [(speed_mps, yaw_rate_rad_s,
-    duration_s)]: its plan made (tipbot_fw.drive.plan_for), the first rows filled (`ahead` of
+    duration_s)]: its plan made (tipbot_fw.drive.plan.plan_for), the first rows filled (`ahead` of
     them, default LOOKAHEAD_TICKS) and handed to the core. -> the CourseFollower, whose side()
     the loop's slack runs."""
-    from tipbot_fw.drive import plan_for
+    from tipbot_fw.drive.plan import plan_for
     ref = gains.kalman.reference
     follower = CourseFollower(plan_for(gains, core, course), core, ref.track_m, ref.limits['speed_mps'], gains.ts_s)
     follower.fill(ahead)
@@ -111,7 +111,7 @@ def follow_course(gains, core, course, ahead=None):
 
 
 class CourseFollower(object):
-    """The rows of a course's plan (bytes, tipbot_fw.drive.course_plan) for a Kalman core, with the
+    """The rows of a course's plan (bytes, tipbot_fw.drive.plan.course_plan) for a Kalman core, with the
     module docstring's offsets; `rows` is the deque KalmanCore.set_live takes."""
 
     def __init__(self, plan, core, track_m, top_speed_mps, period_s):

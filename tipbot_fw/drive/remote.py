@@ -12,13 +12,13 @@ dropped), within the gains' limits (clipped to them: a remote's keys ask for 'fa
 the fastest allowed). With no command obeyed for TIMEOUT_S the command is zero: the robot
 comes to rest and keeps balancing.
 
-The reference is made in the loop's slack (a side task, tipbot_fw.slack), LOOKAHEAD_TICKS ahead
+The reference is made in the loop's slack (a side task, tipbot_fw.side_tasks), LOOKAHEAD_TICKS ahead
 of the ticks, a row at a time in scalar Python (about 32,000 instructions on the brick; with
 numpy, whose every call costs about 20,000, one row was 540,000: more than the slack of a tick):
-each change of a channel's command a smoothstep as a course's (tipbot_fw.drive), a change that
+each change of a channel's command a smoothstep as a course's (tipbot_fw.drive.plan), a change that
 arrives during another one waiting for it to end. The core copies one row a tick
 (KalmanCore.set_live): the loop runs its side task at least every 10 ticks, and a stall's skip
-leaves the plan 12 rows (tipbot_fw.kalman.LIVE_KEEP_ROWS).
+leaves the plan 12 rows (tipbot_fw.cores.kalman.LIVE_KEEP_ROWS).
 
 Python 3.5, standard library.
 """
@@ -27,9 +27,9 @@ import math
 import socket
 import struct
 
-from tipbot_fw.course import channel_limits, transition_s
-from tipbot_fw.drive import smoothstep
-from tipbot_fw.kalman import REF
+from tipbot_fw.drive.course import channel_limits, transition_s
+from tipbot_fw.drive.plan import smoothstep
+from tipbot_fw.cores.kalman import REF
 
 MAGIC = b'TBDR'
 COMMAND = struct.Struct('<4sIff')

@@ -1,7 +1,7 @@
 """The device interface the control loop talks to, and an in-memory implementation.
 
 Raw readings cross this interface untouched (counts and integer gyro units, no polarity, no
-offsets): the signal chain owns every conversion, so a log of raw readings replays exactly.
+offsets): the core (tipbot_fw.cores) makes every conversion, so a log of raw readings replays exactly.
 """
 
 
@@ -31,7 +31,7 @@ class Devices(object):
     def close(self):
         pass
 
-    # The EV3 IR remote, when the configuration has one (tipbot_fw.ir_remote): (port, channel),
+    # The EV3 IR remote, when the configuration has one (tipbot_fw.drive.ir_remote): (port, channel),
     # and read_ir_remote() -> its button code, an int (read outside the tick).
     ir_remote = None
 

@@ -1,13 +1,13 @@
 """The paper's core (config estimator: detector): signal chain, Section 6 detector, LQR.
 
-Selectable for reproducing the paper; the firmware's default is tipbot_fw.kalman. Raw readings
-+ battery voltage -> duties and a log row, no I/O, no time (tipbot_fw.core describes the
+Selectable for reproducing the paper; the firmware's default is tipbot_fw.cores.kalman. Raw readings
++ battery voltage -> duties and a log row, no I/O, no time (tipbot_fw.cores.core describes the
 interface both cores share). Pipeline per tick: signal chain -> detector + control law (one
 matrix product) -> saturation -> duty -> log row.
 
 On the brick each Python float handled one by one costs about as much as a multiply-add inside
 the product, so the core moves data by struct packing and byte copies between preallocated
-buffers, and folds every constant factor into the matrix (tipbot_fw.detector):
+buffers, and folds every constant factor into the matrix (tipbot_fw.cores.detector):
   v_bytes (the product's input v): [x~_k | w-_k-1 | duty_k | y_k | y_k+1 (used entries)], float64
   z_bytes (its output z):          [x~_k+1 | w-_k | dcmd_k+1], 18 float64
 duty_k are the duties written to the motors at tick k and dcmd_k+1 the next ones before
@@ -23,31 +23,32 @@ import struct
 
 import numpy as np
 
-from tipbot_fw import logfile
 from tipbot_fw.config import motor_polarity
-from tipbot_fw.controller import battery_constants, to_duties
-from tipbot_fw.detector import N_FIXED, N_OUT, U_OUT, V_U, V_W, V_Y0, W_OUT, X_OUT, fold
-from tipbot_fw.gains import ACTUATED_INPUTS, N_STATES
-from tipbot_fw.signals import SignalChain, lowpass_coefficient
+from tipbot_fw.cores.core import Core
+from tipbot_fw.cores.detector import N_FIXED, N_OUT, U_OUT, V_U, V_W, V_Y0, W_OUT, X_OUT, fold
+from tipbot_fw.cores.detector_rows import DetectorRows
+from tipbot_fw.cores.saturation import battery_constants, to_duties
+from tipbot_fw.cores.signal_chain import SignalChain, lowpass_coefficient
+from tipbot_fw.vocabulary import ACTUATED_INPUTS, FLAG_BITS, N_STATES, STOP_FLAGS
 
-FALL = logfile.FLAG_BITS['fall']
-JOINT_LIMIT = logfile.FLAG_BITS['joint_limit']
-STOP_FLAGS = FALL | JOINT_LIMIT
+FALL = FLAG_BITS['fall']
+JOINT_LIMIT = FLAG_BITS['joint_limit']
 
 _DCMD = struct.Struct('<4d')
 _DUTY_Y = struct.Struct('<14d')
-_SCALARS = struct.Struct('<{}d'.format(logfile.MEM_DUTY - logfile.MEM_ENC))
+_SCALARS = struct.Struct('<{}d'.format(DetectorRows.mem('duty_r') - DetectorRows.mem('enc_r')))  # enc_r..flags
 # byte offsets in v_bytes / z_bytes / a memory row
 _V_U = 8 * V_U.start
 _V_Y1 = 8 * N_FIXED
 _Z_U = 8 * U_OUT.start
 _Z_END = 8 * N_OUT
-_ROW_SCALARS = 8 * logfile.MEM_ENC
-_ROW_DUTY_Y = 8 * logfile.MEM_DUTY
-_ROW_Z = 8 * logfile.MEM_Z
-_ROW_END = 8 * logfile.MEM_COLUMNS
+_ROW_SCALARS = DetectorRows.at('enc_r')
+_ROW_DUTY_Y = DetectorRows.at('duty_r')
+_ROW_Z = DetectorRows.at('xt_d_r')
+_ROW_END = DetectorRows.row_bytes
+_MEM_Y = DetectorRows.mem('y_d_r')
 assert (X_OUT, W_OUT) == (slice(0, 10), V_W) and (U_OUT.stop, V_U.stop, V_Y0.stop) == (18, 18, N_FIXED)
-assert (logfile.MEM_Z - logfile.MEM_DUTY, logfile.MEM_COLUMNS - logfile.MEM_Z) == (4 + N_STATES, N_OUT)
+assert ((_ROW_Z - _ROW_DUTY_Y) // 8, (_ROW_END - _ROW_Z) // 8) == (4 + N_STATES, N_OUT)
 
 
 def _picker(indices):
@@ -57,13 +58,13 @@ def _picker(indices):
     return lambda y: tuple(y[i] for i in indices)
 
 
-class DetectorCore(object):
+class DetectorCore(Core):
     """Per-tick computation; its whole state is recorded in each log row.
 
     set_gyro_bias(bias_dps) after the calibration, set_battery(battery_v) before the first tick and whenever the voltage changes (outside the
     ticks: it rescales the matrix); start(enc, gyro, buf, offset) for the first tick,
     step(enc, gyro, buf, offset) for every later one. Both write the tick's memory row
-    (logfile.MEM_NAMES), except its time columns, into the bytearray buf at byte offset
+    (DetectorRows.mem_names), except its time columns, into the bytearray buf at byte offset
     `offset`, and return (duties, stop): duties for Devices.write_duties, stop nonzero
     (FALL / JOINT_LIMIT bits) if the motors must be stopped now instead.
     """
@@ -74,7 +75,7 @@ class DetectorCore(object):
     @staticmethod
     def row_layout(gains, config):
         """The log row of this core (before the core is made: the log's header)."""
-        return logfile.DetectorRows(motor_polarity(config))
+        return DetectorRows(motor_polarity(config))
 
     def __init__(self, gains, config, counts_per_rot=(360, 360, 360, 360), layout=None):
         self.chain = None
@@ -120,7 +121,7 @@ class DetectorCore(object):
 
     def angles(self, mem_row):
         """(th1, th2, th3) of a memory row, for the stop message."""
-        y = mem_row[logfile.MEM_Y:logfile.MEM_Y + 5]
+        y = mem_row[_MEM_Y:_MEM_Y + 5]
         return float(y[2]), float(y[3]), float(y[4])
 
     def set_battery(self, battery_v):
@@ -159,7 +160,7 @@ class DetectorCore(object):
         return self._finish(enc, gyro, y, buf, offset)
 
     def step(self, enc, gyro, buf, offset):
-        """Every later tick: the equations of tipbot_fw.detector as z = M v, one numpy call."""
+        """Every later tick: the equations of tipbot_fw.cores.detector as z = M v, one numpy call."""
         y = self.chain.update(enc, gyro)
         self.pack_y1(self.v_bytes, _V_Y1, *self.pick_y1(y))
         self.dot(self.v, self.z)
@@ -185,18 +186,19 @@ class DetectorCore(object):
 
     def skip(self, periods):
         """Periods the loop missed: the paper's core, kept as published, resumes from its last
-        estimate (the Kalman core predicts through them: tipbot_fw.kalman)."""
+        estimate (the Kalman core predicts through them: tipbot_fw.cores.kalman)."""
 
     def wind_down(self):
-        """The paper's law has no integrators (tipbot_fw.kalman's may have): nothing to keep."""
+        """The paper's law has no integrators (tipbot_fw.cores.kalman's may have): nothing to keep."""
         return False
 
     def restore(self, row, encoder_offsets):
         """State as right after the tick that produced the (file layout) log row `row`."""
         r = [float(x) for x in row]
-        L = logfile
-        y = r[L.Y:L.Y + N_STATES]
-        self.chain.restore(encoder_offsets, y, r[L.BIAS], r[L.GYRO + 1])
-        self.v[0:N_STATES] = r[L.XT:L.XT + N_STATES]
-        self.v[V_W] = [r[L.W + i] for i in ACTUATED_INPUTS]
-        _DUTY_Y.pack_into(self.v_bytes, _V_U, *(r[L.DUTY:L.DUTY + 4] + y))
+        col = DetectorRows.col
+        y0, xt, w, duty = col('y_d_r'), col('xt_d_r'), col('w_r'), col('duty_r')
+        y = r[y0:y0 + N_STATES]
+        self.chain.restore(encoder_offsets, y, r[col('gyro_bias')], r[col('gyro_rate')])
+        self.v[0:N_STATES] = r[xt:xt + N_STATES]
+        self.v[V_W] = [r[w + i] for i in ACTUATED_INPUTS]
+        _DUTY_Y.pack_into(self.v_bytes, _V_U, *(r[duty:duty + 4] + y))

@@ -1,41 +1,13 @@
 """Why a run stops, with which exit code, and signal handling that cannot skip the motor stop.
 
-Exit codes of `python3 -m tipbot_fw` (also in docs/safety.md and the cli help):
-  0   run reached --duration (or check/calibrate succeeded)
-  1   unexpected error (a bug): motors stopped, log written, traceback printed
-  2   invalid command line, config or gains, or a log path that cannot be written (or no room
-      for the log): refused to start, devices not opened, no log (the message says why)
-  3   devices missing or with the wrong driver: refused to start, motors untouched, (run) a
-      log of the header only, naming them
-  4   refused to start: battery below limits.min_battery_v, the gyro moved during calibration,
-      or (identify) the owner did not confirm that the motor is free to turn
-  5   a device read or write failed during the run, or a reading no hardware can give (a gyro
-      rate beyond +-440 deg/s, an encoder jump faster than any motor turns, a battery voltage
-      outside what an EV3 can run on or jumping implausibly)
-  6   fall (|th1| beyond limits.th1_rad) or a joint beyond its limit: stopped in that tick
-  7   the loop fell behind: more than limits.max_lost_s lost to late ticks (periods skipped,
-      lateness) within limits.overrun_window_s
-  8   the controller stalled: its supervisor saw no heartbeat, stopped the motors and stopped it
-  9   (supervisor) the controller died without exiting (SIGKILL, a crash, out of memory): the
-      supervisor stopped the motors; the log keeps the rows written before
-  130 interrupted (Ctrl-C, SIGINT)
-  143 terminated by a signal (SIGTERM, SIGHUP, SIGQUIT, SIGUSR1, ...: the log names it), or
-      the supervisor died and the controller stopped its motors itself
+The exit codes of `python3 -m tipbot_fw` are the table of tipbot_fw.guard.exit_codes (the cli's
+--help lists it); each planned stop below carries its code.
 """
 import signal
 
-EXIT_OK = 0
-EXIT_ERROR = 1
-EXIT_INVALID = 2
-EXIT_DEVICES = 3
-EXIT_REFUSED = 4
-EXIT_DEVICE_FAILURE = 5
-EXIT_LIMIT = 6
-EXIT_OVERRUN = 7
-EXIT_WATCHDOG = 8
-EXIT_CONTROLLER_DIED = 9
-EXIT_INTERRUPT = 130
-EXIT_TERMINATED = 143
+from tipbot_fw.guard.exit_codes import (EXIT_CONTROLLER_DIED, EXIT_DEVICE_FAILURE, EXIT_DEVICES,  # noqa: F401
+                                        EXIT_ERROR, EXIT_INTERRUPT, EXIT_INVALID, EXIT_LIMIT, EXIT_OK,
+                                        EXIT_OVERRUN, EXIT_REFUSED, EXIT_TERMINATED, EXIT_WATCHDOG)
 
 
 class SafetyStop(Exception):
@@ -120,12 +92,17 @@ def termination_signals():
 
 
 def signal_name(signum):
+    """SIGTERM, SIGRTMIN+3, SIGKILL, ...: a termination signal's name first (the controller's
+    stops), any other's (the supervisor's view of a controller that died), else 'signal N'."""
     for name in _TERMINATION_NAMES:
         if getattr(signal, name, None) == signum:
             return name
     lo = getattr(signal, 'SIGRTMIN', None)
     if lo is not None and signum >= lo:
         return 'SIGRTMIN+{}'.format(signum - lo)
+    for name in dir(signal):
+        if name.startswith('SIG') and not name.startswith('SIG_') and getattr(signal, name) == signum:
+            return name
     return 'signal {}'.format(signum)
 
 
@@ -168,7 +145,7 @@ class SignalGuard(object):
     SIGHUP: a run started over ssh gets it when the connection drops; SIGQUIT is Ctrl-\\ on the
     terminal; their default actions would kill the process with the motors still running.
 
-    ``heartbeat`` (tipbot_fw.heartbeat) tells a SIGTERM from the supervisor after a stall
+    ``heartbeat`` (tipbot_fw.guard.heartbeat) tells a SIGTERM from the supervisor after a stall
     ('watchdog') and the parent-death signal of a dead supervisor ('supervisor_gone') from an
     owner's SIGTERM.
 

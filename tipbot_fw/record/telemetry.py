@@ -1,5 +1,5 @@
 """Live telemetry: `python3 -m tipbot_fw run --telemetry HOST:PORT` sends one UDP datagram every
-few ticks, in the loop's slack after the tick's writes (a side task, tipbot_fw.slack).
+few ticks, in the loop's slack after the tick's writes (a side task, tipbot_fw.side_tasks).
 
 Datagram, version 2, little-endian (docs/telemetry.md): HEADER, then the tick's values (BODY),
 then, for the Kalman core, the constants that make them SI:
@@ -15,14 +15,14 @@ then, for the Kalman core, the constants that make them SI:
     int64), then for the Kalman core the states' resolutions (f64 each) and the wheels' metres
     per count (2 x f64).
 
-The values are the tick's row of the log as the loop stored it in memory (tipbot_fw.logfile's
+The values are the tick's row of the log as the loop stored it in memory (tipbot_fw.record.logfile's
 row layouts): one struct unpack picks them out of the row's bytes and one pack puts them in
 the datagram (row_copier), so a datagram costs two C calls, the counters and one send, and the
 brick converts nothing (the constants are packed once, when the sender is attached). ROW_FIELDS
 is the one mapping from each core's row to the datagram: a change of a row's columns needs it
 (and only it) adapted; a name the row no longer has is refused when the sender is attached,
 before the run. decode() makes of either the same SI values that the replay's signals() gives
-for the log's tick (tipbot_fw.replay), with the same arithmetic, bit for bit: DECODED.
+for the log's tick (tipbot_fw.record.replay), with the same arithmetic, bit for bit: DECODED.
 
 Sending never blocks and never raises: a datagram that cannot go (nobody listening, no route,
 a full buffer) is counted and the loop goes on. Python 3.5, standard library only: the host's
@@ -32,8 +32,8 @@ import operator
 import socket
 import struct
 
-from tipbot_fw.gains import INTEGRATOR_NAMES, integrator_count
-from tipbot_fw.logfile import REFERENCE_COLUMNS, STATE_NAMES
+from tipbot_fw.vocabulary import INTEGRATOR_NAMES, STATE_NAMES, integrator_count
+from tipbot_fw.cores.kalman_rows import REFERENCE_COLUMNS
 
 MAGIC = b'TBTM'
 VERSION = 2
@@ -48,7 +48,7 @@ KALMAN = 0x80
 REFERENCE = 0x40
 REFERENCE_NAMES = tuple(name for name, _ in REFERENCE_COLUMNS)
 DISTURBANCES = ('w_r', 'w_l', 'w_th2', 'w_th3')
-# A law with integral action (tipbot_fw.kalman): its integrators' states after the gyro bias
+# A law with integral action (tipbot_fw.cores.kalman): its integrators' states after the gyro bias
 INTEGRAL = 0x20
 # The row's columns each datagram carries, per core; 'xi_*' stands for the Kalman filter's
 # states in the row's order (10 robot states, its disturbance states, the gyro bias)
@@ -85,7 +85,7 @@ def row_copier(names, row_names, head=''):
     much)."""
     missing = [n for n in names if n not in row_names]
     if missing:
-        raise TelemetryError('telemetry: the log row has no column {} (tipbot_fw.telemetry.ROW_FIELDS)'
+        raise TelemetryError('telemetry: the log row has no column {} (tipbot_fw.record.telemetry.ROW_FIELDS)'
                              .format(', '.join(missing)))
     runs = []       # [first row column, columns]
     for i in (row_names.index(n) for n in names):
@@ -154,7 +154,7 @@ class Layout(object):
 
     @classmethod
     def of_rows(cls, rows, driving=False):
-        """The layout for a core's row layout (tipbot_fw.logfile.DetectorRows / KalmanRows);
+        """The layout for a core's row layout (tipbot_fw.record.logfile.DetectorRows / KalmanRows);
         driving: with the drive reference."""
         if rows.estimator == 'detector':
             return cls(0)
@@ -192,7 +192,7 @@ class TelemetrySender(object):
         self.size = None        # bytes a datagram has (attach)
 
     def attach(self, log, stats, core):
-        """The side task sending tick k - 1's row of `log` (a tipbot_fw.logfile.LogBuffer that
+        """The side task sending tick k - 1's row of `log` (a tipbot_fw.record.logfile.LogBuffer that
         the loop fills with `core`'s rows; stats: its LoopStats) when called with k. A closure
         over locals: on the brick each attribute lookup of a method would cost as much as a C
         call here."""

@@ -12,9 +12,9 @@ The remote sends only while a button is held and the sensor reads 0 when none is
 smoothly to rest and keeps balancing. A read that fails or gives a code outside 0-11 counts as
 no button (and is counted, for the run's summary).
 
-The sensor is read in the loop's slack (a side task, as tipbot_fw.remote's receiver is), at most
+The sensor is read in the loop's slack (a side task, as tipbot_fw.drive.remote's receiver is), at most
 every READ_PERIOD_S: a sysfs read costs 0.3-0.45 ms, the tick never pays it. Same interface as
-tipbot_fw.remote.Receiver (poll, summary, close, host), so the live plan is the same.
+tipbot_fw.drive.remote.Receiver (poll, summary, close, host), so the live plan is the same.
 
 Python 3.5, standard library.
 """

@@ -26,7 +26,7 @@ the products.
 """
 import numpy as np
 
-from tipbot_fw.gains import ACTUATED_INPUTS, N_INPUTS, N_STATES
+from tipbot_fw.vocabulary import ACTUATED_INPUTS, N_INPUTS, N_STATES
 
 N_ACT = len(ACTUATED_INPUTS)
 N_FIXED = N_STATES + 2 * N_ACT + N_STATES    # x~_k, w-_{k-1}, u_k, y_k: always in v

@@ -1,6 +1,6 @@
 """The log file's container (docs/log-format.md): records that each check themselves, written
 while the robot runs, so that a crash, a full disk or a power cut keeps what was written and
-the file still reads. Generic over the columns the header declares (tipbot_fw.logfile has the
+the file still reads. Generic over the columns the header declares (tipbot_fw.record.logfile has the
 run log's columns, tipbot_fw.identify the identify log's). Python 3.5, numpy, standard library.
 
 Format version 2::
@@ -41,9 +41,10 @@ import zlib
 import numpy as np
 
 from tipbot_fw import fields
+from tipbot_fw.vocabulary import LOG_FORMAT_VERSION
 
 MAGIC = b'TIPBLOG\n'
-FORMAT_VERSION = 2
+FORMAT_VERSION = LOG_FORMAT_VERSION
 READ_VERSIONS = (1, 2)
 HEAD, INFO, ROWS, TAIL = b'HEAD', b'INFO', b'ROWS', b'TAIL'
 TAGS = (HEAD, INFO, ROWS, TAIL)
@@ -81,7 +82,7 @@ class LogWriter(object):
     keep: None (every row, in order) or (head, slots, slot_rows): the first ``head`` rows in
     order, then a ring of ``slots`` slots of ``slot_rows`` rows keeping the last ones (module
     docstring; slots 0: the first ``head`` rows only). Rows given after the head must start at a
-    chunk boundary (head + a multiple of slot_rows): tipbot_fw.logfile.LogBuffer flushes so."""
+    chunk boundary (head + a multiple of slot_rows): tipbot_fw.record.logfile.LogBuffer flushes so."""
 
     def __init__(self, path, columns, reserve_rows=0, layout=None, keep=None):
         self.path = path

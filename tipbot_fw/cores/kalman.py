@@ -22,7 +22,7 @@ columns, is exactly zero because the model does not depend on where the robot st
 
 One matrix holds both (the gains file's `kalman.law.M`, rows [u_k, xi_k], columns
 [u_{k-1}, xi_{k-1}, dphi_r, dphi_l, m_k]). Every bounded quantity then has a small fixed-point
-range, which is what lets the tick run in int64 (tipbot_fw.fixedpoint): per tick
+range, which is what lets the tick run in int64 (tipbot_fw.cores.fixedpoint): per tick
 
     v    = [duty_{k-1} (4) | xi_{k-1} (n) | dcount_r, dcount_l, the four counts from their
             zeros, gyro_rate (raw ints) | 1]
@@ -47,7 +47,7 @@ made at construction, one matrix-vector product per set bit of m, in Python floa
 order (IEEE-754: the same bits on any machine, so a replay still matches): about 1 ms on the
 brick for a stall of 60 periods, paid only after a stall.
 
-Driving (tipbot_fw.drive): the law tracks a moving reference, u = -K_a (x^ - x_ref) + u_ff. The
+Driving (tipbot_fw.drive.plan): the law tracks a moving reference, u = -K_a (x^ - x_ref) + u_ff. The
 reference's wheel positions d_ref enter as the wheel angles do with the other sign (the same
 law columns, in 1/REF_POS_STEPS of a count), its wheel speeds and accelerations r through the
 gains' feedforward G (hostsim.model.reference: K_a x_ref's other entries plus u_ff, per unit of
@@ -74,21 +74,21 @@ import struct
 
 import numpy as np
 
-from tipbot_fw import fixedpoint as fx
-from tipbot_fw import logfile
 from tipbot_fw.config import motor_polarity
-from tipbot_fw.plausibility import BATTERY_MAX_V, BATTERY_MIN_V
+from tipbot_fw.cores import fixedpoint as fx
+from tipbot_fw.cores.core import Core
+from tipbot_fw.cores.kalman_rows import FLOATS, FLOATS_AT, INPUTS, INTS_AT, REFERENCE_COLUMNS, KalmanRows
+from tipbot_fw.guard.plausibility import BATTERY_MAX_V, BATTERY_MIN_V
+from tipbot_fw.vocabulary import ACTUATED_INPUTS, FLAG_BITS, STOP_FLAGS
 
-FALL = logfile.FLAG_BITS['fall']
-JOINT_LIMIT = logfile.FLAG_BITS['joint_limit']
-STOP_FLAGS = FALL | JOINT_LIMIT
-N_U = 4
-N_MEAS = 5
-N_IN = 7                 # the counts' changes dcount_r, dcount_l; the counts from their zeros
+FALL = FLAG_BITS['fall']
+JOINT_LIMIT = FLAG_BITS['joint_limit']
+N_U = len(ACTUATED_INPUTS)
+N_IN = len(INPUTS)       # the counts' changes dcount_r, dcount_l; the counts from their zeros
                          # count_r, count_l, count_2, count_3; the gyro's raw rate
 # Bounds of the integer inputs (fixed-point ranges), and who keeps each: the duties (the
 # saturation); a wheel's count change in one tick (the control loop's plausibility check,
-# tipbot_fw.plausibility.EncoderBound with max_step = MAX_COUNT_STEP: a motor turns at most
+# tipbot_fw.guard.plausibility.EncoderBound with max_step = MAX_COUNT_STEP: a motor turns at most
 # ~30 rad/s, 0.15 rad = 9 counts per 5 ms, and the check refuses a jump beyond the hardware's
 # reach, at most this whatever the period or a late tick: more is a failed read); a wheel's count
 # from its zero (2^23 counts, 23,300 turns, 5 km: more than a charge of the battery at full
@@ -103,11 +103,11 @@ WHEEL_COUNT_BOUND = 2 ** 23
 JOINT_COUNT_BOUND = 2 ** 10
 GYRO_BOUND = 2 ** 15
 INPUT_BOUNDS = (WHEEL_STEP_BOUND,) * 2 + (WHEEL_COUNT_BOUND,) * 2 + (JOINT_COUNT_BOUND,) * 2 + (GYRO_BOUND,)
-# The drive reference (tipbot_fw.drive; zero while the robot stands): the wheels' reference
+# The drive reference (tipbot_fw.drive.plan; zero while the robot stands): the wheels' reference
 # positions in 1/REF_POS_STEPS of a count from the zeros (a sub-count step: 0.1 mm/s at 5 ms is
 # 1/13 of a count a tick), their speeds and accelerations in 2^-REF_RATE_EXP m/s and m/s^2.
 # Bounds: the counts' own, 2 m/s and 16 m/s^2 (beyond the gains' limits, which the reference keeps).
-N_REF = len(logfile.REFERENCE_COLUMNS)
+N_REF = len(REFERENCE_COLUMNS)
 REF_POS_STEPS = 256
 REF_RATE_EXP = 16
 REF_BOUNDS = (WHEEL_COUNT_BOUND * REF_POS_STEPS,) * 2 + (2 ** (1 + REF_RATE_EXP),) * 2 + (2 ** (4 + REF_RATE_EXP),) * 2
@@ -115,70 +115,20 @@ REF_BOUNDS = (WHEEL_COUNT_BOUND * REF_POS_STEPS,) * 2 + (2 ** (1 + REF_RATE_EXP)
 # battery can read; the loop refuses any other reading before it reaches set_battery.
 BATTERY_RANGE_V = (BATTERY_MIN_V, BATTERY_MAX_V)
 LAW_COLUMNS = ('u_r', 'u_l', 'u_th2', 'u_th3')      # then xi_*, dphi_r, dphi_l, then m
-MEASUREMENTS = ('phi_r', 'phi_l', 'th2', 'th3', 'gyro')
 
-_IN = struct.Struct('<7q')
+_IN = struct.Struct('<{}q'.format(N_IN))
 REF = struct.Struct('<6q')
-_IN_REF = struct.Struct('<8q{}s'.format(REF.size))    # the inputs, the constant 1, a reference row
+_IN_REF = struct.Struct('<{}q{}s'.format(N_IN + 1, REF.size))    # the inputs, the constant 1, a reference row
 _HEAD = struct.Struct('<7q')          # duty_r..duty_3, xi_d_r, xi_d_l, xi_th1
 _DUTIES = struct.Struct('<4q')
 _PAIR = struct.Struct('<2q')
-_ROW_FLOATS = struct.Struct('<3d')    # battery_v, flags, gyro_angle
+pack_floats = FLOATS.pack_into     # the row's floats (kalman_rows.HEAD_FLOATS)
 # A live plan's rows a stall's skip leaves: more than the ticks the loop may go without its side
 # task, which makes them (tipbot_fw.loop.SIDE_WAIT_S: 10 ticks at 5 ms), so a tick always has one;
 # the reference then runs that much behind the clock, which a remote's driver does not see
 LIVE_KEEP_ROWS = 12
 # skip(m) composes A^m from A^(2^j), j < SKIP_POWERS; a longer stall repeats the largest one
 SKIP_POWERS = 7
-
-
-def measurement_matrix(n, rw_m, integrators=0):
-    """C_a (5 x n): [phi_r, phi_l] = d / R_w - th1 (the wheel encoders sit on link 1), th2, th3,
-    gyro = th1_dot + the bias (the filter's last state; the law's integrators, after it, are
-    not measured)."""
-    c = np.zeros((N_MEAS, n))
-    c[0, 0] = c[1, 1] = 1.0 / rw_m
-    c[0, 2] = c[1, 2] = -1.0
-    c[2, 3] = c[3, 4] = c[4, 7] = c[4, n - integrators - 1] = 1.0
-    return c
-
-
-def augmented_model(a, b_act, rw_m, dist_inputs):
-    """(A_a, B_a, C_a) of the filter's model from the robot's discrete model (SI; b_act: the
-    actuated inputs' columns): state [x (10), w (one per disturbed input), gyro bias], the
-    disturbances entering like their inputs, disturbances and bias constant (random walks)."""
-    nw = len(dist_inputs)
-    n = 10 + nw + 1
-    aa = np.zeros((n, n))
-    aa[:10, :10] = a
-    aa[:10, 10:10 + nw] = b_act[:, list(dist_inputs)]
-    aa[10:, 10:] = np.eye(nw + 1)
-    ba = np.zeros((n, N_U))
-    ba[:10] = b_act
-    return aa, ba, measurement_matrix(n, rw_m)
-
-
-def fold(a, b, c, gain, k, rw_m, integrators=0):
-    """The per-tick matrix of the module docstring (SI, float64) from the filter's A_a (n x n),
-    B_a (n x 4), C_a (5 x n), gain L (n x 5), law K_a (4 x n) and the wheel radius of C_a; the
-    last `integrators` states are the law's integrators of the wheel positions (module
-    docstring, "Integral action"), which depend on where the robot stands."""
-    n = a.shape[0]
-    nf = n - integrators
-    ikc = np.eye(n) - gain.dot(c)
-    f = ikc.dot(a)
-    g_u = ikc.dot(b)
-    t = np.zeros((n, N_MEAS))
-    t[0, 0] = t[1, 1] = rw_m
-    ft = f.dot(t)
-    w = ft + gain - t
-    w[:nf, 0:2] = 0.0   # exactly zero by construction (module docstring); what is left is round-off
-    # an integrator adds ts d_k: on the wheel angles, ts R_w (A's row of it times T, exactly)
-    w[nf:, 0:2] = a[nf:, 0:2].dot(t[0:2, 0:2])
-    state = np.hstack([g_u, f, -ft[:, 0:2], w])
-    out = -k.dot(state)
-    out[:, N_U + n + 2:] -= k.dot(t)
-    return np.vstack([out, state])
 
 
 def wheel_m_per_count(rw_m, polarity, counts_per_rot):
@@ -227,19 +177,12 @@ def ref_rows(data):
     return [data[i:i + REF.size] for i in range(0, len(data), REF.size)]
 
 
-def reference_step(kal, xf, u_applied, m):
-    """One tick written out (x^_{k-1}, u_{k-1} volts, m_k SI) -> (x^_k, u_k unsaturated)."""
-    xp = kal.A.dot(xf) + kal.B.dot(u_applied)
-    xf1 = xp + kal.L.dot(m - kal.C.dot(xp))
-    return xf1, -kal.K.dot(xf1)
-
-
-class KalmanCore(object):
+class KalmanCore(Core):
     """Per-tick computation of the Kalman law; its whole state is in each log row.
 
     Construct, then set_gyro_bias() (after calibration), set_battery() before the first tick
     and whenever the reading changes (outside the ticks), start() for the first tick, step()
-    for every later one. Both write the tick's memory row (tipbot_fw.logfile.KalmanRows) except
+    for every later one. Both write the tick's memory row (tipbot_fw.cores.kalman_rows) except
     its time columns into the bytearray buf at byte offset `offset` and return (duties, stop):
     duties for Devices.write_duties, stop nonzero (FALL / JOINT_LIMIT) if the motors must be
     stopped now instead. The wheel counts' change from tick to tick must stay within
@@ -251,7 +194,7 @@ class KalmanCore(object):
     @staticmethod
     def row_layout(gains, config):
         """The log row of this core for these gains (before the core is made: the log's header)."""
-        return logfile.KalmanRows.for_gains(gains.kalman)
+        return KalmanRows.for_gains(gains.kalman)
 
     def __init__(self, gains, config, counts_per_rot=(360, 360, 360, 360), layout=None):
         kal = gains.kalman
@@ -319,7 +262,7 @@ class KalmanCore(object):
         self._in_off = 8 * (N_U + n)
         self._ref_off = 8 * (one + 1)
         self._row_ints = 8 * self.n_v
-        self._row_end = 40 + self._row_ints
+        self._row_end = INTS_AT + self._row_ints
         self.rows = layout or self.row_layout(gains, config)
         assert self.rows.q == self.q and self.rows.has_reference
         self.rows.ref_lsb = self.ref_lsb
@@ -504,19 +447,19 @@ class KalmanCore(object):
         if not lo <= th1 <= hi:
             bits |= FALL
         # the row (as _row writes it; written out here: a call costs the tick ~600 instructions)
-        _ROW_FLOATS.pack_into(buf, offset + 16, self.battery_v, bits, gyro_angle)
-        buf[offset + 40:offset + self._row_end] = self.v_bytes[0:self._row_ints]
+        pack_floats(buf, offset + FLOATS_AT, self.battery_v, bits, gyro_angle)
+        buf[offset + INTS_AT:offset + self._row_end] = self.v_bytes[0:self._row_ints]
         return [q0, q1, q2, q3], bits & STOP_FLAGS
 
     def _row(self, flags, gyro_angle, buf, offset):
-        _ROW_FLOATS.pack_into(buf, offset + 16, self.battery_v, flags, gyro_angle)
-        buf[offset + 40:offset + self._row_end] = self.v_bytes[0:self._row_ints]
+        pack_floats(buf, offset + FLOATS_AT, self.battery_v, flags, gyro_angle)
+        buf[offset + INTS_AT:offset + self._row_end] = self.v_bytes[0:self._row_ints]
         return [0, 0, 0, 0], flags & STOP_FLAGS
 
     def skip(self, periods):
         """The loop missed `periods` periods after this tick, the last duties held: predict the
         carried state through them (module docstring). Outside the tick; replayed from the
-        log's flags (logfile.SKIP_SHIFT)."""
+        log's flags (vocabulary.SKIP_SHIFT)."""
         if periods <= 0:
             return
         if self.live is not None:       # a live plan: skip what it has, keeping LIVE_KEEP_ROWS; the
@@ -538,7 +481,7 @@ class KalmanCore(object):
     def wind_down(self):
         """Keep the integrators within +-kalman.integral.limit_m_s (anti-windup; module docstring,
         "Integral action"). Outside the tick: the loop once a second, the replay after the rows
-        the log flags (logfile.WOUND_DOWN). -> True if it changed them."""
+        the log flags (vocabulary.WOUND_DOWN). -> True if it changed them."""
         top = self.z_limit
         if top is None:
             return False
@@ -579,7 +522,7 @@ class KalmanCore(object):
 
     def set_live(self, rows):
         """Drive from a live plan: `rows` (a collections.deque of 48-byte rows, made by
-        tipbot_fw.pathfollow for a course, tipbot_fw.remote for a remote) that the loop's slack
+        tipbot_fw.drive.pathfollow for a course, tipbot_fw.drive.remote for a remote) that the loop's slack
         keeps filled (more than LIVE_KEEP_ROWS ahead); one is taken each tick."""
         self.plan = self.live = rows
         self.next_row = rows.popleft

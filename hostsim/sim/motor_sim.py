@@ -10,9 +10,9 @@ driven from what a client wrote into the fake sysfs tree (hostsim.world.fake_ev3
 * ``stop`` with stop_action ``coast``: open circuit, i = 0 (no back-EMF braking);
 * ``stop`` with ``brake`` or ``hold``: short circuit, u = 0 (back-EMF braking).
 
-The battery (a real EV3's: about 7.5-8.2 V) has an internal resistance ``battery_r_ohm``
-and the brick draws ``idle_current_a``: with the motor's current the terminal voltage sags,
-Vb = V0 - R (I0 + d i). Driven, the motor then sees a resistance Ra + R d^2 and a source
+The battery (a real EV3's: about 7.5-8.2 V; hostsim.world.sensors.BatteryModel, the robot's)
+has an internal resistance ``battery_r_ohm`` and the brick draws ``idle_current_a``: with the
+motor's current the terminal voltage sags, Vb = V0 - R (I0 + d i). Driven, the motor then sees a resistance Ra + R d^2 and a source
 d (V0 - R I0): still a first-order system, integrated exactly (no step-size error) between
 the fake's polls, so a wrong fit cannot hide behind integration error. The fake publishes
 ``voltage_now`` (with ``battery_noise_v`` of seeded Gaussian noise, as an ADC reads it) and
@@ -47,7 +47,8 @@ import numpy as np
 
 from hostsim.model.motors import TABLE2, TABLE2_DRIVER, MotorParams
 from hostsim.world.fake_ev3 import FakeEV3
-from tipbot_fw.clock import VirtualClock
+from hostsim.world.sensors import BatteryModel
+from tipbot_fw.io.clock import VirtualClock
 
 DEFAULT_BATTERY_V = 8.0
 DEFAULT_BATTERY_R_OHM = 0.1
@@ -106,9 +107,8 @@ class FakeMotorBench:
         self.port = port
         self.p = params
         self.motor = DCMotor(params)
-        self.v0 = float(battery_v)
-        self.r_batt = float(battery_r_ohm)
-        self.i0 = float(idle_current_a)
+        self.battery = BatteryModel(battery_v, battery_r_ohm, ke_v_s=(params.ke_v_s,), ra_ohm=(params.ra_ohm,),
+                                    idle_a=idle_current_a)
         self.noise_v = float(battery_noise_v)
         self.rng = np.random.default_rng(seed)
         self.encoder_phase = float(self.rng.uniform(0.0, 1.0))   # fraction of a count at angle 0
@@ -137,8 +137,8 @@ class FakeMotorBench:
         mode = self.mode()
         if mode == "drive":
             d = self.state.duty / 100.0
-            ra_eff = p.ra_ohm + self.r_batt * d * d
-            v_src = d * (self.v0 - self.r_batt * self.i0)
+            v_src, r_more = self.battery.source(d)
+            ra_eff = p.ra_ohm + r_more
             return p.km_nm_a * v_src / ra_eff, p.km_nm_a * p.ke_v_s / ra_eff + p.beta_nm_s, d
         if mode == "brake":
             return 0.0, p.km_nm_a * p.ke_v_s / p.ra_ohm + p.beta_nm_s, 0.0
@@ -146,11 +146,8 @@ class FakeMotorBench:
 
     def terminal_v(self):
         """Battery terminal voltage now (without the reading noise)."""
-        p = self.p
         d = self.state.duty / 100.0 if self.mode() == "drive" else 0.0
-        i = (d * (self.v0 - self.r_batt * self.i0) - p.ke_v_s * self.motor.omega) / (p.ra_ohm + self.r_batt * d * d) \
-            if d else 0.0
-        return self.v0 - self.r_batt * (self.i0 + d * i)
+        return self.battery.voltage([d], [self.motor.omega])
 
     # -- time
     def advance(self, t_from, t_to):

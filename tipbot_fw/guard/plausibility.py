@@ -5,7 +5,7 @@ can give is 6 fresh lithium primary AA cells, 1.8 V each: 10.8 V (alkaline: 6 x 
 the pack: 8.4 V full). The lowest the brick runs on is its battery driver's voltage_min_design,
 4.8 V (the pack itself shuts the brick down at 6.0 V, lms2012; ../shared/ev3-hardware.md). So a
 voltage_now outside [BATTERY_MIN_V, BATTERY_MAX_V] = [4.5, 11.0] V is no battery's: the run
-stops (tipbot_fw.safety.ImplausibleBattery) and the value is never divided by. Between two
+stops (tipbot_fw.guard.safety.ImplausibleBattery) and the value is never divided by. Between two
 readings (about a second apart) a battery's open-circuit voltage moves by far less than a volt;
 what moves it is the sag under the motors' current, I x R: 4 motors at 7.6 V into 6-7 ohm
 windings draw at most about 4.5 A, and 6 AA cells have about 0.6 ohm: 2.7 V. A step beyond
@@ -22,14 +22,14 @@ are dt apart and each may be up to ENCODER_UPDATE_S (2 ms: the counts are update
 old, so a motor turns at most speed x (dt + 2 ms) + 1 count between them. At 5 ms that is 19
 counts for a Large motor, 27 for a Medium one; more is a failed read. A control core that
 computes in fixed point takes a count change up to its max_count_step (the Kalman core: 1023,
-tipbot_fw.kalman): the bound is capped there (EncoderBound.with_max_step, applied by the loop),
+tipbot_fw.cores.kalman): the bound is capped there (EncoderBound.with_max_step, applied by the loop),
 which only a tick about 0.3 s late could reach, so that no reading the loop lets through can
 overflow the core's integers.
 """
 import copy
 
-from tipbot_fw.config import MOTOR_ROLES
-from tipbot_fw.safety import DeviceFailure, ImplausibleBattery
+from tipbot_fw.vocabulary import MOTOR_ROLES
+from tipbot_fw.guard.safety import DeviceFailure, ImplausibleBattery
 
 BATTERY_MIN_V = 4.5
 BATTERY_MAX_V = 11.0

@@ -1,4 +1,4 @@
-"""The real EV3 device layer (the Devices interface of tipbot_fw.devices).
+"""The real EV3 device layer (the Devices interface of tipbot_fw.io.devices).
 
 Start-up uses python-ev3dev2 to find each device by its port and check its driver, then sets
 the devices up once. The 5 ms control tick uses only file descriptors opened once, with
@@ -8,7 +8,7 @@ the devices up once. The 5 ms control tick uses only file descriptors opened onc
   and rate as two little-endian s16, read together so both come from the same sample);
 * write_duties: one write of ``duty_cycle_sp`` per motor whose duty changed (0 to 4 writes).
 
-What crosses the interface is raw (tipbot_fw.devices): counts as the encoder counts them, the
+What crosses the interface is raw (tipbot_fw.io.devices): counts as the encoder counts them, the
 gyro as the sensor reports it, duties already signed for each motor. Polarity, encoder zeros
 and the gyro sign belong to the signal chain. For the counts to be the encoder's own, the sysfs
 ``polarity`` (which negates both position and duty in the driver) is set to ``normal`` at start,
@@ -43,7 +43,7 @@ Python 3.5 + the standard library (python-ev3dev2 is imported at start-up only).
 import os
 import struct
 
-from tipbot_fw.config import MOTOR_ROLES
+from tipbot_fw.vocabulary import MOTOR_ROLES
 from tipbot_fw.console import say   # (not logging: its modules are memory the brick does not spare)
 
 GYRO_ROLE = 'gyro'
@@ -457,7 +457,7 @@ class Ev3Devices(SysfsDevices):
         return None if self._ir is None else (self._ir[0], self._ir[2])
 
     def read_ir_remote(self):
-        """The IR remote channel's button code (tipbot_fw.ir_remote), one read; Ev3ReadError."""
+        """The IR remote channel's button code (tipbot_fw.drive.ir_remote), one read; Ev3ReadError."""
         try:
             return int(self._pread(self._ir_fd, _READ_BYTES, 0))
         except (OSError, ValueError) as e:

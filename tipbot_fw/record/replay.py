@@ -3,20 +3,23 @@ the log go in, the rows that come out must equal the logged ones (time columns e
 
 The Kalman core (the default) computes in integers: its replay is bit-exact on any machine
 (its integer matrix is built from the gains file's decimals by elementwise IEEE-754 operations
-in a fixed order, tipbot_fw.fixedpoint). The detector core computes in float64: bit-exact on
+in a fixed order, tipbot_fw.cores.fixedpoint). The detector core computes in float64: bit-exact on
 the machine that wrote the log, within the last bits across machines (docs/log-format.md).
 
 signals() turns the rows of either core into the estimates and inputs in SI, for plots,
 metrics, the export and the simulator (host tools); the telemetry decoder
-(tipbot_fw.telemetry.decode) computes the same values, with the same arithmetic, from a
+(tipbot_fw.record.telemetry.decode) computes the same values, with the same arithmetic, from a
 datagram.
 """
 import numpy as np
 
-from tipbot_fw import logfile
-from tipbot_fw.core import make_core, row_layout
-from tipbot_fw.gains import ACTUATED_INPUTS
-from tipbot_fw.kalman import wheel_m_per_count
+from tipbot_fw import vocabulary
+from tipbot_fw.config import motor_polarity
+from tipbot_fw.cores import kalman_rows
+from tipbot_fw.cores.core import make_core, row_layout
+from tipbot_fw.cores.kalman import wheel_m_per_count
+from tipbot_fw.record import logfile
+from tipbot_fw.vocabulary import ACTUATED_INPUTS
 
 
 def core_from_header(header, gains, check_gains=True):
@@ -45,8 +48,8 @@ def replay(header, rows, gains, check_gains=True):
     layout = core.rows
     logged = _logged_layout(header, layout)
     one = logfile.LogBuffer(1, layout)
-    loop_bits = logfile.FLAG_BITS['overrun'] | (logfile.SKIP_MAX << logfile.SKIP_SHIFT) | logfile.WOUND_DOWN
-    skip_bits = logfile.SKIP_MAX << logfile.SKIP_SHIFT
+    loop_bits = vocabulary.FLAG_BITS['overrun'] | (vocabulary.SKIP_MAX << vocabulary.SKIP_SHIFT) | vocabulary.WOUND_DOWN
+    skip_bits = vocabulary.SKIP_MAX << vocabulary.SKIP_SHIFT
     flags = layout.col('flags')
     readings = _reader(logged)
     starts = dict(logfile.segment_rows(header, len(rows)))
@@ -88,8 +91,8 @@ def replay(header, rows, gains, check_gains=True):
 def _between_ticks(core, loops, skip_bits):
     """What the loop did to the core after a tick, as its flags say: the periods it skipped
     (predicted through), then the integrators kept within their limit (tipbot_fw.loop)."""
-    core.skip((loops & skip_bits) >> logfile.SKIP_SHIFT)
-    if loops & logfile.WOUND_DOWN:
+    core.skip((loops & skip_bits) >> vocabulary.SKIP_SHIFT)
+    if loops & vocabulary.WOUND_DOWN:
         core.wind_down()
 
 
@@ -121,14 +124,23 @@ def _reader(layout):
     return read
 
 
+class Signals(object):
+    """The estimates and inputs of a log's rows, SI (signals()): x_hat (n x 10), w_hat (n x 5,
+    V), u (the applied inputs, n x 5, V), u_cmd (the law's output before rounding and
+    saturation, n x 5, V), gyro_bias (n, rad/s: the Kalman core's; None for the detector's),
+    reference (n x 6, kalman_rows.REFERENCE_COLUMNS: a driven run's; else None)."""
+    __slots__ = ('x_hat', 'w_hat', 'u', 'u_cmd', 'gyro_bias', 'reference')
+
+    def __init__(self, x_hat, w_hat, u, u_cmd, gyro_bias=None, reference=None):
+        self.x_hat, self.w_hat, self.u, self.u_cmd = x_hat, w_hat, u, u_cmd
+        self.gyro_bias, self.reference = gyro_bias, reference
+
+
 def signals(header, rows, gains):
-    """The estimates and inputs of a log's rows, SI: {'x_hat': n x 10, 'w_hat': n x 5 (V),
-    'u': the applied inputs (n x 5, V), 'u_cmd': the law's output before rounding and
-    saturation (n x 5, V), and for a driven run 'reference' (n x 6: logfile.REFERENCE_COLUMNS)},
-    for either core."""
+    """The estimates and inputs of a log's rows, for either core -> Signals."""
     names = [c['name'] for c in header['columns']]
     col = names.index
-    pol = [header['config']['polarity'][m] for m in ('right_wheel', 'left_wheel', 'joint2', 'joint3')]
+    pol = motor_polarity(header['config'])
     n = len(rows)
     u = np.zeros((n, 5))
     volts_per_duty = rows[:, col('battery_v')] / 100.0      # as the detector's file columns
@@ -136,7 +148,7 @@ def signals(header, rows, gains):
         u[:, ACTUATED_INPUTS[k]] = pol[k] * rows[:, col(name)] * volts_per_duty
     if header.get('estimator', 'detector') == 'detector':
         block = lambda first, width: rows[:, col(first):col(first) + width]
-        return {'x_hat': block('xt_d_r', 10), 'w_hat': block('w_r', 5), 'u': u, 'u_cmd': block('u_cmd_r', 5)}
+        return Signals(block('xt_d_r', 10), block('w_r', 5), u, block('u_cmd_r', 5))
     kal = gains.kalman
     xi = np.column_stack([rows[:, col('xi_' + s)] for s in kal.state_names])
     x = xi.copy()
@@ -149,14 +161,14 @@ def signals(header, rows, gains):
         w_hat[:, ACTUATED_INPUTS[i]] = x[:, 10 + j]
     u_cmd = np.zeros((n, 5))
     u_cmd[:, ACTUATED_INPUTS] = -x.dot(kal.K.T)
-    out = {'x_hat': x[:, :10], 'w_hat': w_hat, 'u': u, 'u_cmd': u_cmd, 'gyro_bias': x[:, kal.n_filter - 1]}
+    out = Signals(x[:, :10], w_hat, u, u_cmd, x[:, kal.n_filter - 1])
     if 'ref_d_r' in names:
         # driving: u = -K_a (x^ - x_ref) + u_ff = -K_a x^ + K_a's wheel columns d_ref + G r
-        # (tipbot_fw.kalman, "Driving"); the reference as the log has it
-        ref = np.column_stack([rows[:, col(c)] for c, _ in logfile.REFERENCE_COLUMNS])
+        # (tipbot_fw.cores.kalman, "Driving"); the reference as the log has it
+        ref = np.column_stack([rows[:, col(c)] for c, _ in kalman_rows.REFERENCE_COLUMNS])
         extra = ref[:, 0:2].dot(kal.K[:, 0:2].T)
         if kal.reference is not None:
             extra += ref[:, 2:].dot(kal.reference.G.T)
         u_cmd[:, ACTUATED_INPUTS] += extra
-        out['reference'] = ref
+        out.reference = ref
     return out

@@ -17,12 +17,12 @@ from tipbot_fw import fields
 
 SEGMENT_FIELDS = ('speed_mps', 'yaw_rate_dps', 'duration_s')
 MAX_SEGMENTS = 1000
-# The whole plan is made before the run (tipbot_fw.drive): 48 bytes a tick, 1.2 MB for two minutes
+# The whole plan is made before the run (tipbot_fw.drive.plan): 48 bytes a tick, 1.2 MB for two minutes
 MAX_COURSE_S = 120.0
 
 
 def transition_s(dv, a_max, j_max):
-    """The smoothstep's duration for a change dv (tipbot_fw.drive's docstring); 0 for no change."""
+    """The smoothstep's duration for a change dv (tipbot_fw.drive.plan's docstring); 0 for no change."""
     dv = abs(dv)
     if dv == 0.0:
         return 0.0

@@ -4,7 +4,7 @@ says when to show which).
 Lights: the EV3's two status lights (left, right), each a red and a green LED in sysfs, named
 as python-ev3dev2 2.1.0 names them (ev3dev2/_platform/ev3.py: ``led0:red:brick-status``, ...);
 amber is red and green together (ev3dev2's LED_COLORS). They are written directly, ``b"255\\n"``
-through a descriptor opened once, as tipbot_fw.ev3io writes duties: ev3dev2's Leds would do the
+through a descriptor opened once, as tipbot_fw.io.ev3dev writes duties: ev3dev2's Leds would do the
 same work with more Python per write, and writes without a newline, which a shorter value over a
 longer one cannot be told from on the fake EV3.
 
@@ -58,7 +58,7 @@ STATES = {
               'stopped: an error (a bug, a crash, a stall)'),
 }
 
-# tipbot_fw.safety's stop reasons -> states; any other reason shows 'error'. An implausible
+# tipbot_fw.guard.safety's stop reasons -> states; any other reason shows 'error'. An implausible
 # battery reading is a failed read (exit 5, as a sensor's). The supervisor's stops (a stalled
 # controller, 'watchdog'; one that died, 'controller_died', shown by the supervisor itself) and
 # a lost supervisor are errors: the 16 light pairs hold no distinct one for them that is not
@@ -107,7 +107,7 @@ class BrickSignals(object):
 
     ``problems``: one line per light or speaker that could not be opened or written (then left
     alone). ``sleep`` and ``now`` time the notes of show(). ``io``: open/write/pwrite/close with
-    the API of :mod:`os` (as tipbot_fw.ev3io takes one: a simulation times each write).
+    the API of :mod:`os` (as tipbot_fw.io.ev3dev takes one: a simulation times each write).
     """
 
     def __init__(self, sysfs_root=SYSFS_ROOT, sound_path=None, sleep=time.sleep, now=time.monotonic, io=os):
