@@ -64,7 +64,12 @@ def test_bisection_finds_the_push_the_robot_takes_and_the_report_shows_it(monkey
         assert 0.05 < r["margin"] < 1.0
     cells = margins.margin_cells(res, "physical")
     assert cells["push"].startswith("%.3g (" % min(r["margin"] for r in rows)) and cells["backlash"] == "-"
-    assert all(len(v.strip("+-")) <= 5 for v in cells["push"].split(" (")[1].rstrip(")").split(", "))   # 3 digits
+    figures, bound = cells["push"].split("; ")
+    assert all(len(v.strip("+-")) <= 5 for v in figures.split(" (")[1].rstrip(")").split(", "))   # 3 digits
+    # beside the bound no law passes on the study's plant (push_limit's LP)
+    assert res["_meta"]["push_bound_n_s"] == pytest.approx(0.250, abs=0.002)
+    assert bound == "%.0f %% of the LP bound %.3f" % (100 * min(r["margin"] for r in rows) / res["_meta"]["push_bound_n_s"],
+                                                    res["_meta"]["push_bound_n_s"])
     text = "\n".join(margins_section(res))
     assert "push on link 3 (N s)" in text and "robustness/margins.png" in text
 

@@ -71,7 +71,12 @@ def test_the_command_writes_both_bounds_per_direction(tmp_path, capsys):
         res = json.load(f)
     assert {(r["sign"], r["joint_limits"]) for r in res["rows"]} == {(1, False), (1, True), (-1, False), (-1, True)}
     assert all(r["recoverable_n_s"] <= r["certain_loss_n_s"] + 1e-9 for r in res["rows"])
-    assert "certain loss N s" in capsys.readouterr().out
+    # a plan started after the push holds less than the bound, the later the less
+    late = [r["recoverable_n_s"] for r in res["late"] if r["delay_s"] > 0]
+    assert len(late) == 4 and all(a > b for a, b in zip(late, late[1:]))
+    assert late[0] <= min(r["certain_loss_n_s"] for r in res["rows"]) + 1e-9     # never beyond certain loss
+    out = capsys.readouterr().out
+    assert "certain loss N s" in out and "plan starts (ticks after the push)" in out
 
 
 def test_a_bad_gains_file_is_one_line_naming_it(tmp_path, capsys):

@@ -17,7 +17,9 @@ as the effect grows. Effects (MARGINS):
 - dead band (%): the Large motors' Coulomb friction as the duty that starts them at 8 V (the
   Medium's 2.5 times that, as 10 to 4);
 - gyro drift (deg/s^2): a bias ramp, each sign (the smaller margin counts);
-- push (N s): a horizontal impulse at link 3's centre of mass at t = 10 s, each direction;
+- push (N s): a horizontal impulse at link 3's centre of mass at t = 10 s, each direction; the
+  table gives it beside the bound no law within u_max passes on the study's plant (the LP
+  bound of hostsim.studies.push_limit on the physical gains' model, PUSH_BOUND_GAINS);
 - gyro freeze (ms): freezes of that length at exponential intervals of 5 s mean;
 - single stall (ms): one stall of the whole brick that long at t = 10 s (at a random phase of
   the period), the motors held at their last duties as the H-bridges hold them; the firmware's
@@ -59,6 +61,10 @@ FREEZE_INTERVAL_S = 5.0
 MEDIUM_BACKLASH_RATIO = 0.5 / 3.0
 MEDIUM_DEADBAND_RATIO = 10.0 / 4.0
 PAYLOAD_AT_M = 0.1        # the top of link 3 (2 l3 = 10 cm): where a load tips it most
+# The study's plant is the physical model of params/robot.json whatever the gains: the push's
+# bound is that model's, which the physical gains file carries (2 s: the bounds agree from there)
+PUSH_BOUND_GAINS = "gains/physical.json"
+PUSH_BOUND_HORIZON_S = 2.0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -286,15 +292,24 @@ def run_margins(gains_paths=DEFAULT_GAINS, coarse=False, ablation_gains=None, jo
             if (r["gains"], r["off"], r["lifted"]) not in keys:
                 keys.append((r["gains"], r["off"], r["lifted"]))
         out["ablation"] = [aggregate([r for r in rows if (r["gains"], r["off"], r["lifted"]) == key]) for key in keys]
-    out["_meta"] = {"duration_s": realistic.duration_s, "coarse": coarse, "jobs": jobs, "seeds": seeds,
+    push_bound = push_bound_n_s() if effects is None or "push" in effects else None
+    out["_meta"] = {"duration_s": realistic.duration_s, "push_bound_n_s": push_bound, "coarse": coarse, "jobs": jobs, "seeds": seeds,
                     "overrun_limit_lifted": OVERRUN_LIMIT_LIFTED,
                     "wall_s": time.perf_counter() - t0, "push_at_s": PUSH_AT_S,
                     "freeze_interval_s": FREEZE_INTERVAL_S, "margins": [dataclasses.asdict(m) for m in MARGINS]}
     return out
 
 
+def push_bound_n_s():
+    """The largest push on link 3 any law within u_max recovers on the study's plant (N s, the
+    LP's recoverable bound, either direction)."""
+    from hostsim.studies.push_limit import load_design, max_push
+    return max_push(load_design(os.path.join(REPO_ROOT, PUSH_BOUND_GAINS)), PUSH_BOUND_HORIZON_S, "recover")[0]
+
+
 def margin_cells(res, label):
-    """{effect key: text} of one gains file's margins (the smaller sign where there are two)."""
+    """{effect key: text} of one gains file's margins (the smaller sign where there are two; the
+    push beside its LP bound)."""
     cells = {}
     for m in MARGINS:
         rows = [r for r in res["margins"] if r["gains"] == label and r["effect"] == m.key]
@@ -310,6 +325,9 @@ def margin_cells(res, label):
         if len(rows) > 1:
             text += " (%s)" % ", ".join("%s%.3g" % ("+" if r["sign"] > 0 else "-", r["margin"])
                                         for r in sorted(rows, key=lambda r: -r["sign"]))
+        bound = res.get("_meta", {}).get("push_bound_n_s")
+        if m.key == "push" and bound:
+            text += "; %.0f %% of the LP bound %.3f" % (100 * worst["margin"] / bound, bound)
         cells[m.key] = text
     return cells
 

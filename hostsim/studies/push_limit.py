@@ -34,6 +34,12 @@ recoverable LP asks the robot at rest and upright at N (so that it stays within 
 the states become variables, and the solver holds them only up to 2 s horizons
 (STATE_LP_MAX_HORIZON_S). The table gives the bounds with and without.
 
+**Late plans** (hostsim.studies.push_plan): the firmware sees a push one tick after it at the
+earliest, and its law acts on an estimate that has not yet seen it meanwhile; a plan started j
+ticks after the push, the law acting before, duties landing 0 or 2 ms into the tick, ending
+where the law takes over without saturating, recovers less: the table "a plan started j
+ticks after the push" (``--no-late`` leaves it out).
+
 **Validation** (``--validate``): at 95 % of the recoverable bound of the physical model, each
 direction, the joint-limited LP's plan (made with 97 % of u_max, the rest left for feedback) is
 tracked on the nonlinear plant (u = sat(u_plan - K (x - x_plan)), exact state), then the LQR
@@ -65,7 +71,8 @@ PLAN_INPUT_FRACTION = 0.97
 
 
 def load_design(gains_path, u_max_v=None):
-    """-> dict: the gains' discrete model (SI), the law, the input limit and the push direction."""
+    """-> dict: the gains' discrete model (SI), the law, the input limit, the push direction and
+    the Kalman block (filter and law, tipbot_fw.gains.KalmanGains)."""
     from hostsim.model.equations import RobotModel, state_scale_to_si
     from hostsim.world.plant import link_push_impulse
     from tipbot_fw.gains import load_gains_document
@@ -79,7 +86,7 @@ def load_design(gains_path, u_max_v=None):
     act = list(g.actuated_inputs)
     return {"variant": g.model_variant, "ts_s": g.ts_s, "A": g.A, "B": g.B[:, act], "K": g.K[act],
             "u_max_v": float(g.u_max_v if u_max_v is None else u_max_v), "x_push": x_push, "model": model,
-            "actuated": act}
+            "actuated": act, "kalman": g.kalman}
 
 
 def unstable_modes(a, b, u_max_v):
@@ -276,11 +283,16 @@ def stop_limits():
     return lim["th1"], lim["th2"], lim["th3"]
 
 
-def run_push_limit(gains_paths=DEFAULT_GAINS, horizons_s=DEFAULT_HORIZONS_S, u_max_v=None, validate=False):
-    """-> {"rows": [...], "lqr": [...], "validation": [one per direction] or None, "_meta": {...}}."""
+def run_push_limit(gains_paths=DEFAULT_GAINS, horizons_s=DEFAULT_HORIZONS_S, u_max_v=None, validate=False,
+                   late=True):
+    """-> {"rows": [...], "lqr": [...], "late": [...] (None without late or with u_max_v: the late
+    plans are made for the gains' own u_max), "validation": [one per direction] or None,
+    "_meta": {...}}."""
+    from hostsim.studies import push_plan
     joint_limits = stop_limits()
     t0 = time.perf_counter()
     rows, lqr, validation = [], [], None
+    late_rows = [] if late and u_max_v is None else None
     for path in gains_paths:
         path = path if os.path.isabs(path) else os.path.join(REPO_ROOT, path)
         d = load_design(path, u_max_v)
@@ -293,10 +305,12 @@ def run_push_limit(gains_paths=DEFAULT_GAINS, horizons_s=DEFAULT_HORIZONS_S, u_m
                         skip = limits is not None and h > STATE_LP_MAX_HORIZON_S
                         row[key] = None if skip else max_push(d, h, mode, limits, sign)[0]
                     rows.append(row)
+        if late_rows is not None and d["kalman"] is not None:      # the plans start after the filter's law
+            late_rows += push_plan.late_bounds(_solve, d, d["kalman"], joint_limits)
         if validate and d["variant"] == "physical":
             validation = [validate_nonlinear(d, min(max(horizons_s), STATE_LP_MAX_HORIZON_S), sign)
                           for sign in (1.0, -1.0)]
-    return {"rows": rows, "lqr": lqr, "validation": validation,
+    return {"rows": rows, "lqr": lqr, "late": late_rows, "validation": validation,
             "_meta": {"generator": __name__, "target_n_s": TARGET_N_S, "link": PUSH_LINK, "joint_limits_rad": list(joint_limits),
                       "u_max_v": u_max_v, "gains": list(gains_paths), "wall_s": time.perf_counter() - t0}}
 
@@ -306,6 +320,17 @@ def table(res):
     rows = [[r["variant"], "+" if r["sign"] > 0 else "-", "yes" if r["joint_limits"] else "no",
              "%g" % r["horizon_s"], _num(r["recoverable_n_s"]), _num(r["certain_loss_n_s"])]
             for r in res["rows"]]
+    return _columns(head, rows)
+
+
+def late_table(res):
+    head = ["model", "duties land ms", "plan starts (ticks after the push)", "recoverable N s"]
+    rows = [[r["variant"], "%g" % (1000 * r["delay_s"]), str(r["start_tick"]), _num(r["recoverable_n_s"])]
+            for r in res["late"]]
+    return _columns(head, rows)
+
+
+def _columns(head, rows):
     widths = [max(len(str(c)) for c in col) for col in zip(head, *rows)]
     fmt = "  ".join("%%-%ds" % w for w in widths)
     return "\n".join(fmt % tuple(r) for r in [head] + rows)
@@ -327,6 +352,8 @@ def main(argv=None):
     ap.add_argument("--validate", action="store_true",
                     help="also track the LP's plan on the nonlinear physical plant at %g %%%% of the bound"
                     % (100 * VALIDATE_FRACTION))
+    ap.add_argument("--no-late", action="store_true",
+                    help="leave out the plans started after the push (hostsim.studies.push_plan)")
     ap.add_argument("--out", default=out_dir("push_limit"), help="output directory (default out/push_limit)")
     args = ap.parse_args(argv)
     if any(not h > 0 for h in args.horizons):
@@ -335,7 +362,7 @@ def main(argv=None):
         ap.error("--u-max-v must be positive")
     from tipbot_fw.gains import GainsError
     try:
-        res = run_push_limit(args.gains, args.horizons, args.u_max_v, args.validate)
+        res = run_push_limit(args.gains, args.horizons, args.u_max_v, args.validate, not args.no_late)
     except GainsError as exc:
         print("python -m hostsim push-limit: %s" % exc, file=sys.stderr)
         return 2
@@ -348,6 +375,11 @@ def main(argv=None):
     for r in res["lqr"]:
         print("the gains' LQR law, saturated, exact state, linear model, %s (%s): %.3f N s"
               % (r["variant"], "+" if r["sign"] > 0 else "-", r["lqr_linear_n_s"]))
+    if res["late"]:
+        from hostsim.studies.push_plan import END_INPUT_FRACTION, HORIZON_S
+        print("A plan started j ticks after the push (the law acting before it; %g s, then the law within %g %% of "
+              "u_max; one direction: the linear model is symmetric)" % (HORIZON_S, 100 * END_INPUT_FRACTION))
+        print(late_table(res))
     for v in res["validation"] or ():
         print("nonlinear physical plant, push %+.3f N s (%g %% of the bound): plan then LQR peak |th1| %.3f rad "
               "(%s); LQR alone peak |th1| %.3f rad (%s)"
