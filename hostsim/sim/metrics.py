@@ -121,8 +121,7 @@ def compute(run, sc, u_max_v):
 
 def _end_params(sc):
     """The robot's parameters at the end of a scenario's run (a payload still on included)."""
-    from hostsim.model.params import scaled_params
-    from hostsim.world.load import payload_params
+    from hostsim.model.params import payload_params, scaled_params
     p = scaled_params(sc.param_scale)
     pl = sc.payload
     return p if pl is None or pl.t_off_s is not None else payload_params(p, pl.mass_kg, pl.distance_m)
