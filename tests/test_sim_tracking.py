@@ -62,6 +62,28 @@ def test_tracking_figures():
     assert tracking.tracking_metrics(off, straight)["rms_cross_track_m"] == pytest.approx(0.02)
 
 
+def test_the_stop_time_runs_from_the_reference_at_zero_to_the_wheels_at_rest():
+    """metrics.stop_time_s: a course of 0.2 m/s for 5 s then 2 s of rest; the reference reaches
+    zero at 5 s plus its smoothstep (T from the limits), the wheels' 0.1 s mean must then stay
+    within 0.05 m/s for 0.5 s."""
+    from hostsim.sim.metrics import stop_time_s
+    from tipbot_fw.drive.course import transition_s
+    lim = (0.6, 3.0)
+    t_zero = 5.0 + transition_s(0.2, *lim)
+    t = np.arange(0.0, 7.0, 0.005)
+    course = [(0.2, 0.0, 5.0), (0.0, 0.0, 2.0)]
+    # at rest 0.3 s after the reference: a decaying overshoot, then still
+    v = np.where(t < t_zero, 0.2, np.where(t < t_zero + 0.3, -0.1, 0.0))
+    # + 0.05 s: the 0.1 s mean of -0.1 m/s and rest is within 0.05 m/s half-way
+    assert stop_time_s(t, v, course, lim) == pytest.approx(0.3 + 0.05, abs=0.011)
+    # rocking at 0.08 m/s, 2.5 Hz, after the stop: never at rest
+    rocking = np.where(t < t_zero, 0.2, 0.08 * np.sin(2 * math.pi * 2.5 * t))
+    assert stop_time_s(t, rocking, course, lim) is None
+    # a turn in place is no stop; no stop at all: None
+    assert stop_time_s(t, v, [(0.2, 0.0, 5.0), (0.0, 1.0, 2.0)], lim) is None
+    assert stop_time_s(t, np.zeros_like(t), [(0.0, 0.0, 7.0)], lim) is None
+
+
 def test_the_plan_view_draws_both_paths(tmp_path):
     c = tracking.commanded_path([(0.2, 0.0, 2.0), (0.0, 90.0, 1.0)], 0.0)
     fig, ax = plt.subplots()

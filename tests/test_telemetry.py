@@ -158,7 +158,7 @@ def test_ipv6_targets_parse():
 def test_the_bench_measures_the_loop_with_telemetry(capsys):
     assert bench.main(['--ticks', '200', '--telemetry-every', '10']) == 0
     out = capsys.readouterr().out
-    assert 'telemetry: 20 datagrams of 368 bytes in 201 ticks (one every 10: 20 per second at 5 ms), 0 not sent' in out
+    assert 'telemetry: 20 datagrams of 384 bytes in 201 ticks (one every 10: 20 per second at 5 ms), 0 not sent' in out
 
 
 def test_the_datagram_layout_is_what_docs_telemetry_says():

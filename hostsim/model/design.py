@@ -220,3 +220,11 @@ def robust_detector(a, b, c, e_mat, actuated, poles=None):
 # Multipliers tried, in order, on the wheel inputs' weight of the physical variant
 # (hostsim.model.gains.robust_design).
 WHEEL_WEIGHT_LADDER = (1.0, 1.5, 2.0, 3.0, 4.0, 5.0, 6.0, 8.0, 10.0, 12.0, 15.0, 20.0, 25.0, 30.0, 40.0, 50.0, 70.0, 100.0)
+
+# Multipliers tried, in order, on the weight of the joint angles th2, th3 (the physical variant;
+# hostsim.model.gains.robust_design). The paper's Q weighs them 1 beside 1e7 on th1, so its law
+# bends the joints freely to balance, and joint 3's servo is softer than gravity's pull on a
+# loaded link 3 (100 g at its top: 0.2 N m/rad against 0.19 from the Medium motor's 13.7 V/rad):
+# the robust set's payload (hostsim.model.kalman.ROBUST_PAYLOAD_KG) asks for a stiffer one.
+JOINT_WEIGHT_LADDER = (1.0, 1e2, 1e4, 1e5, 1e6, 3e6, 1e7, 3e7)
+JOINT_STATES = (3, 4)

@@ -110,6 +110,7 @@ class GainDesign:
     Q: np.ndarray
     R: np.ndarray
     r_wheel_scale: float             # the wheel inputs' weight multiplier (physical variant)
+    joint_weight_scale: float        # the joint angles' weight multiplier (physical variant)
     margins: kalman.Margins          # of the loop over kalman.UncertaintySet (robust or not)
     K: np.ndarray
     P: np.ndarray                    # the Riccati solution
@@ -143,8 +144,9 @@ def design_gains(variant, params, ts_s=DEFAULT_TS_S, detector_poles=None, noise=
                                    [cm_per_unit] * 2 + [1] * 3 + [cm_per_unit] * 2 + [1] * 3)
     chosen = robust_design(variant, params, ts_s, a, b, q, r, e_mat, noise, spread)
     l1, l2, g_w, det_eig = design.robust_detector(a, b, c, e_mat, ACTUATED_INPUTS, detector_poles)
-    return GainDesign(variant=variant, model=model, ts_s=float(ts_s), A=a, B=b, C=c, E=e_mat, Q=q, R=chosen.R,
-                      r_wheel_scale=chosen.r_wheel_scale, margins=chosen.margins,
+    return GainDesign(variant=variant, model=model, ts_s=float(ts_s), A=a, B=b, C=c, E=e_mat, Q=chosen.Q, R=chosen.R,
+                      r_wheel_scale=chosen.r_wheel_scale, joint_weight_scale=chosen.joint_weight_scale,
+                      margins=chosen.margins,
                       K=chosen.K, P=chosen.P, K_w=chosen.K_w, L1=l1, L2=l2, G_w=g_w,
                       closed_loop_eigenvalues=chosen.eig, detector_eigenvalues=det_eig,
                       structure=design.structure_report(a, b, c, ACTUATED_INPUTS), kalman=chosen.kalman,
@@ -154,11 +156,13 @@ def design_gains(variant, params, ts_s=DEFAULT_TS_S, detector_poles=None, noise=
 
 @dataclasses.dataclass(frozen=True)
 class RobustLaw:
-    """What robust_design chose: the wheel inputs' weight factor and the weights R it gave, the
-    LQR (K, its Riccati solution P, the closed loop's eigenvalues), K_w, the Kalman filter and law
+    """What robust_design chose: the joint angles' and the wheel inputs' weight factors and the
+    weights Q, R they gave, the LQR (K, its Riccati solution P, the closed loop's eigenvalues), K_w, the Kalman filter and law
     (hostsim.model.kalman.KalmanDesign) and their margins on the uncertainty set (None until
     margins are known)."""
     r_wheel_scale: float
+    joint_weight_scale: float
+    Q: np.ndarray
     R: np.ndarray
     K: np.ndarray
     P: np.ndarray
@@ -169,32 +173,41 @@ class RobustLaw:
 
 
 def robust_design(variant, params, ts_s, a, b, q, r, e_mat, noise=None, spread=None):
-    """The LQR and the Kalman filter, made robust together: the first wheel input weight of
-    design.WHEEL_WEIGHT_LADDER (physical variant; the paper's weights for the paper variant)
-    and input-noise scale of kalman.INPUT_NOISE_LADDER whose loop (plant, filter, law) has a
-    modes all decay and oscillate with enough damping on every plant of kalman.UncertaintySet
-    (kalman.Margins.robust), the physical variant's law with integral action first (law_design),
-    without it if no step holds with it. When none does, the plain design (both factors 1, the
-    integrators if the variant has them). -> RobustLaw."""
-    uncertainty = kalman.UncertaintySet(params, ts_s, () if spread is None else spread.robots(params))
+    """The LQR and the Kalman filter, made robust together: the first joint weight of
+    design.JOINT_WEIGHT_LADDER, wheel input weight of design.WHEEL_WEIGHT_LADDER (both the
+    physical variant's; the paper's weights for the paper variant) and input-noise scale of
+    kalman.INPUT_NOISE_LADDER whose loop (plant, filter, law) has its modes all decay and
+    oscillate with enough damping on every plant of kalman.UncertaintySet (kalman.Margins.robust;
+    for our designs a payload on link 3 too), the physical variant's law with integral action
+    first (law_design: the filter then estimates joint 2's input disturbance too,
+    kalman.INTEGRAL_DISTURBANCE_INPUTS), without it if no step holds with it. When none does,
+    the plain design (all factors 1, the integrators if the variant has them). -> RobustLaw."""
+    ours = not variant.paper_conventions        # the paper's law is the paper's: no payload asked of it
+    uncertainty = kalman.UncertaintySet(params, ts_s, () if spread is None else spread.robots(params), payload=ours)
     t = state_scale_to_si(variant)
     ti = np.linalg.inv(t)
     base = kalman.NoiseSettings() if noise is None else noise
-    ladder = (1.0,) if variant.paper_conventions else design.WHEEL_WEIGHT_LADDER
+    ladder = design.WHEEL_WEIGHT_LADDER if ours else (1.0,)
+    joints = design.JOINT_WEIGHT_LADDER if ours else (1.0,)
     # our designs: with integral action if any step of the ladders holds, else without
-    integral_options = (False,) if variant.paper_conventions else (True, False)
+    integral_options = (True, False) if ours else (False,)
     plain = None
-    for integral, factor in itertools.product(integral_options, ladder):
+    for integral, joint, factor in itertools.product(integral_options, joints, ladder):
+        q_try = np.array(q, dtype=float)
+        for j in design.JOINT_STATES:
+            q_try[j, j] *= joint
         r_try = np.array(r, dtype=float)
         for j in (0, 1):
             r_try[j, j] *= factor
-        k, p, eig, k_w, k_z = law_design(a, b, q, r_try, e_mat, ts_s, integral)
+        k, p, eig, k_w, k_z = law_design(a, b, q_try, r_try, e_mat, ts_s, integral)
+        dist = kalman.INTEGRAL_DISTURBANCE_INPUTS if integral else base.disturbance_inputs
         for scale in kalman.INPUT_NOISE_LADDER:
-            ns = dataclasses.replace(base, input_noise_scale=scale)
+            ns = dataclasses.replace(base, input_noise_scale=scale, disturbance_inputs=dist)
             kd = kalman.design_kalman(t @ a @ ti, t @ b, k @ ti, k_w, params["rw_m"], ts_s, ns,
                                       integral=None if k_z is None else kalman.integral_law(
                                           k_z / t[0, 0], params["u_max_v"]))
-            found = RobustLaw(r_wheel_scale=factor, R=r_try, K=k, P=p, eig=eig, K_w=k_w, kalman=kd)
+            found = RobustLaw(r_wheel_scale=factor, joint_weight_scale=joint, Q=q_try, R=r_try, K=k, P=p, eig=eig,
+                              K_w=k_w, kalman=kd)
             if plain is None:
                 plain = found
             if uncertainty.holds(kd):
@@ -208,6 +221,8 @@ def robust_design(variant, params, ts_s, a, b, q, r, e_mat, noise=None, spread=N
 # as much as 1 cm), so the integrators take out an offset in a few times that, slower than the
 # balancing and faster than the filter's slowest mode (the gyro bias's, ~7 s).
 INTEGRAL_TIME_S = 2.0
+# The joints' motors among the model's five inputs (u_th2, u_th3).
+JOINT_INPUTS = (3, 4)
 
 
 def law_design(a, b, q, r, e_mat, ts_s, integral):
@@ -221,6 +236,10 @@ def law_design(a, b, q, r, e_mat, ts_s, integral):
     az, bz = design.integrator_model(a, b, ts_s, rows)
     e_z = design.integrator_model(a, e_mat, ts_s, rows)[1]
     k_w = design.disturbance_gain(az, bz, None, r, np.hstack([k, k_z]), p, e_z)
+    # a joint's estimated disturbance (kalman.INTEGRAL_DISTURBANCE_INPUTS) is the filter's, not
+    # the law's: compensated, it would close an integrator around the joint's Coulomb friction
+    # and backlash, which hunts (kalman.NoiseSettings)
+    k_w[:, list(JOINT_INPUTS)] = 0.0
     return k, p, eig, k_w, k_z[list(ACTUATED_INPUTS)]
 
 
@@ -267,7 +286,8 @@ def to_document(g):
         "actuated_inputs": list(ACTUATED_INPUTS),
         "u_max_v": _num(params["u_max_v"]),
         "r_wheel_scale": _num(g.r_wheel_scale),
-        "robust_to_models": dict(kalman.UncertaintySet.describe(), stabilized=g.margins.robust,
+        "joint_weight_scale": _num(g.joint_weight_scale),
+        "robust_to_models": dict(kalman.UncertaintySet.describe(not variant.paper_conventions), stabilized=g.margins.robust,
                                  **({} if g.spread is None else {"parameter_spread": g.spread.describe()}),
                                  worst_spectral_radius=_num(g.margins.radius),
                                  worst_radius_at=_rounded(list(g.margins.radius_at)),
@@ -399,22 +419,26 @@ def summary(g):
 
 
 def robustness_lines(g):
-    u = kalman.UncertaintySet.describe()
+    u = kalman.UncertaintySet.describe(not g.variant.paper_conventions)
     m = g.margins
 
     def at(w):
-        robot = ("wheel radius x%g" % w[3]) if not isinstance(w[3], str) else "the robot at the fit's %s" % w[3]
+        if not isinstance(w[3], str):
+            robot = "wheel radius x%g" % w[3]
+        else:
+            robot = w[3] if w[3] == kalman.PAYLOAD_LABEL else "the robot at the fit's %s" % w[3]
         return "%s model, duties %g ms into the tick, motor gain x%g, %s" % (w[0], w[1] * 1e3, w[2], robot)
     span = "both models, %s ms of delay, motor gain x%s, wheel radius x%s" % (
         "/".join("%g" % (d * 1e3) for d in u["delays_s"]), "/".join("%g" % v for v in u["input_gains"]),
-        "/".join("%g" % v for v in u["wheel_radius_factors"]))
+        "/".join("%g" % v for v in u["wheel_radius_factors"])) + (
+        ", %g kg at the top of link 3" % u["payload_kg_at_top_of_link_3"] if "payload_kg_at_top_of_link_3" in u else "")
     if g.spread is not None and g.spread.axes():
         span += ", the robots %g sigma along the %d loosest axes of the parameters' fit" % (
             g.spread.describe()["k_sigma"], len(g.spread.axes()))
     where = "worst radius %.5f (%s), least damping %.3f (%s)" % (m.radius, at(m.radius_at), m.damping, at(m.damping_at))
     if m.robust:
-        return ["  wheel input weight x%g, filter input noise x%g: the loop holds %s" % (
-            g.r_wheel_scale, g.kalman.noise.input_noise_scale, span), "    " + where]
+        return ["  joint weight x%g, wheel input weight x%g, filter input noise x%g: the loop holds %s" % (
+            g.joint_weight_scale, g.r_wheel_scale, g.kalman.noise.input_noise_scale, span), "    " + where]
     return ["  WARNING: no wheel weight and filter input noise make the loop hold %s at ts %.4g s; using the "
             "plain design" % (span, g.ts_s), "    " + where]
 

@@ -88,3 +88,20 @@ def params_hash(values):
     """sha256 of the canonical JSON of the parameter values (what the gains were made from)."""
     canon = json.dumps({k: repr(float(v)) for k, v in sorted(values.items())}, sort_keys=True)
     return hashlib.sha256(canon.encode("ascii")).hexdigest()
+
+
+def payload_params(params, mass_kg, distance_m):
+    """params with link 3 carrying a point mass mass_kg at distance_m from its joint, on its
+    axis: link 3 and the mass one rigid body, its mass m3 + m, its centre moved along the link,
+    its inertia about the new centre by the parallel-axis theorem (l3 is only link 3's centre
+    of mass in the equations: nothing sits above it; hostsim.world.load)."""
+    if mass_kg <= 0.0:
+        return dict(params)
+    m3, l3, j3 = params["m3_kg"], params["l3_m"], params["j3_kg_m2"]
+    m = m3 + mass_kg
+    c = (m3 * l3 + mass_kg * distance_m) / m
+    out = dict(params)
+    out["m3_kg"] = m
+    out["l3_m"] = c
+    out["j3_kg_m2"] = j3 + m3 * (l3 - c) ** 2 + mass_kg * (distance_m - c) ** 2
+    return out

@@ -121,8 +121,7 @@ def compute(run, sc, u_max_v):
 
 def _end_params(sc):
     """The robot's parameters at the end of a scenario's run (a payload still on included)."""
-    from hostsim.model.params import scaled_params
-    from hostsim.world.load import payload_params
+    from hostsim.model.params import payload_params, scaled_params
     p = scaled_params(sc.param_scale)
     pl = sc.payload
     return p if pl is None or pl.t_off_s is not None else payload_params(p, pl.mass_kg, pl.distance_m)
@@ -130,7 +129,7 @@ def _end_params(sc):
 
 def course_tracking(run, sc):
     """How the simulated robot's true path (its wheels, integrated in the plane) followed the
-    scenario's course, timed from the release (hostsim.sim.tracking)."""
+    scenario's course, timed from the release (hostsim.sim.tracking), and how fast it stopped."""
     from hostsim.model.params import scaled_params
     from hostsim.sim import tracking
     track_m = scaled_params(sc.param_scale)["track_m"]
@@ -139,7 +138,62 @@ def course_tracking(run, sc):
     segments = [(v, math.degrees(w), d) for v, w, d in sc.course]
     dt = float(np.median(np.diff(t))) if len(t) > 1 else 0.005
     commanded = tracking.commanded_path(segments, 0.0, dt_s=dt, end_s=float(t[-1]))
-    return {k: _f(v) for k, v in tracking.tracking_metrics(true, commanded).items()}
+    out = {k: _f(v) for k, v in tracking.tracking_metrics(true, commanded).items()}
+    out["stop_time_s"] = _f_or_none(stop_time_s(t, true["speed_mps"], sc.course, _forward_limits(sc)))
+    return out
+
+
+def _f_or_none(v):
+    return None if v is None else _f(v)
+
+
+def _forward_limits(sc):
+    """(a_max, j_max) of the forward reference the firmware's plan uses (the gains' limits)."""
+    from tipbot_fw.drive.course import channel_limits
+    from tipbot_fw.gains import load_gains
+    return channel_limits(load_gains(sc.gains).kalman.reference.limits)[0]
+
+
+# A stop (issue 21: "stops from 0.2 m/s within 0.5 s"): from the moment the plan's forward
+# reference reaches zero (the command's change to zero plus its smoothstep, tipbot_fw.drive.plan)
+# until the wheels' speed, averaged over STOP_AVERAGE_S, stays within STOP_SPEED_MPS (a quarter of
+# the 0.2 m/s the issue stops from) for STOP_HOLD_S (or to the segment's end). A standing robot's
+# balancing moves its wheels too (on the realistic brick up to 0.13 m/s at a peak of its wander):
+# a stop that never settles so reads None.
+STOP_AVERAGE_S = 0.1
+STOP_SPEED_MPS = 0.05
+STOP_HOLD_S = 0.5
+
+
+def stop_time_s(t_s, speed_mps, course, forward_limits):
+    """The longest stop time (s) over the course's stops (a segment of zero speed after a moving
+    one, turning neither, and the rest after its last segment), as above; None if the course has no stop or a
+    stop never settles."""
+    from tipbot_fw.drive.course import transition_s
+    t = np.asarray(t_s, dtype=float)
+    v = np.asarray(speed_mps, dtype=float)
+    dt = float(np.median(np.diff(t))) if len(t) > 1 else 0.005
+    k = max(1, int(round(STOP_AVERAGE_S / dt)))
+    avg = np.convolve(v, np.ones(k) / k)[:len(v)]        # the mean over the last STOP_AVERAGE_S
+    worst, start = None, 0.0
+    previous = 0.0
+    # after its last segment a course's commands are zero until the run ends (tipbot_fw.drive.plan)
+    for speed, yaw, duration in list(course) + [(0.0, 0.0, max(0.0, float(t[-1]) - sum(c[2] for c in course)))]:
+        end = start + duration
+        if speed == 0.0 and yaw == 0.0 and previous != 0.0:
+            t_zero = start + transition_s(previous, *forward_limits)
+            band = STOP_SPEED_MPS
+            stopped = None
+            for i in np.nonzero((t >= t_zero) & (t < end))[0]:
+                hold = (t >= t[i]) & (t <= min(t[i] + STOP_HOLD_S, end))
+                if np.all(np.abs(avg[hold]) <= band):
+                    stopped = float(t[i] - t_zero)
+                    break
+            if stopped is None:
+                return None
+            worst = stopped if worst is None else max(worst, stopped)
+        previous, start = speed, end
+    return worst
 
 
 # Oscillation check: the strongest spectral line above OSC_MIN_HZ of each signal after the

@@ -32,19 +32,7 @@ at a kink is not moved to and fro across it.
 """
 import math
 
-
-def payload_params(params, mass_kg, distance_m):
-    """params with link 3 carrying a point mass mass_kg at distance_m from its joint."""
-    if mass_kg <= 0.0:
-        return dict(params)
-    m3, l3, j3 = params["m3_kg"], params["l3_m"], params["j3_kg_m2"]
-    m = m3 + mass_kg
-    c = (m3 * l3 + mass_kg * distance_m) / m
-    out = dict(params)
-    out["m3_kg"] = m
-    out["l3_m"] = c
-    out["j3_kg_m2"] = j3 + m3 * (l3 - c) ** 2 + mass_kg * (distance_m - c) ** 2
-    return out
+from hostsim.model.params import payload_params
 
 
 class Floor:
