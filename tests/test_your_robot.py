@@ -181,12 +181,12 @@ def test_the_pre_flight_check_passes_the_robot_the_gains_were_made_for(paper_log
     assert sum(line.endswith(": ok") for line in lines) == 3
 
 
-def test_the_pre_flight_check_refuses_a_robot_whose_link_3_is_far_lighter_than_entered(tmp_path):
+def test_the_pre_flight_check_refuses_a_robot_whose_link_3_is_twice_as_heavy_as_entered(tmp_path):
     """The gains of the description (the committed physical gains: params/robot.json), the robot
-    with link 3 a seventh as heavy (its inertia too; twice as heavy the gains hold, designed to
-    carry 0.15 kg at its top, and a link 3 2.6 times as heavy fails the swing test itself): its
-    fall pole hardly moves, its joint-3 swing shows the lever, and the check says so."""
-    true = scaled_params({"m3_kg": 0.14, "j3_kg_m2": 0.14}, load_params())
+    with link 3 twice as heavy (its inertia too): its fall pole hardly moves, its joint-3 swing
+    shows the lever doubled, beyond what the design holds with its margins (0-4 ms of delay, the
+    motors +-20 %: hostsim.model.preflight.loop_holds), and the check says so."""
+    true = scaled_params({"m3_kg": 2.0, "j3_kg_m2": 2.0}, load_params())
     fall, swing = str(tmp_path / "fall.log"), str(tmp_path / "swing3.log")
     assert simulate_experiment("fall", true, fall)[0] == 0
     assert simulate_experiment("swing", true, swing, joint=3)[0] == 0
@@ -213,5 +213,5 @@ def test_the_committed_gains_hold_their_own_robot_inside_every_preflight_interva
     for j in (2, 3):
         lo, hi = b["intervals"]["lever%d_kg_m" % j]
         assert lo < b["levers_kg_m"][j - 1] < hi
-    # link 3 doubled lies inside (the design holds 0.15 kg at its top), 2.6 times outside
-    assert 2 * b["levers_kg_m"][2] < b["intervals"]["lever3_kg_m"][1] < 2.6 * b["levers_kg_m"][2]
+    # link 3 doubled lies outside: the committed physical gains do not hold it with their margins
+    assert 2 * b["levers_kg_m"][2] > b["intervals"]["lever3_kg_m"][1]
