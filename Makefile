@@ -138,7 +138,7 @@ bench: venv
 	$(VPY) tools/tick-cost --ticks $(TICKS) -- python3 -m tipbot_fw.bench --drive
 	@echo "== the same, its rows made in the slack and corrected from the robot's pose (the path follower, between ticks)"
 	$(VPY) tools/tick-cost --ticks $(TICKS) -- python3 -m tipbot_fw.bench --drive --follow
-	@echo "== the supervised tick driven by a remote (its live plan's rows made in the slack, a row a tick)"
+	@echo "== the supervised tick driven by a remote (the receiver polled every 4 ticks, the live plan's rows made in batches in the slack)"
 	$(VPY) tools/tick-cost --ticks $(TICKS) -- python3 -m tipbot_fw.bench --remote
 	@echo "== the whole tick as the brick pays it: supervised, the device layer on files and the real clock"
 	$(VPY) tools/tick-cost --ticks $(TICKS) --period-ms 5 -- python3 -m tipbot_fw.bench --whole

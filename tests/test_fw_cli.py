@@ -252,7 +252,7 @@ def test_a_config_naming_a_wrong_device_is_refused_by_file_and_field(tmp_path, c
 
 def test_every_option_of_every_command_has_a_help_text():
     import argparse
-    parser = cli._parser()
+    parser = cli._parser(["--help"])     # the full parser: every command's options
     subs = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
     missing = ['{} {}'.format(name, a.option_strings[0]) for name, sp in subs.choices.items()
                for a in sp._actions if a.option_strings and a.help in (None, '')]

@@ -127,6 +127,9 @@ def test_a_run_driven_over_udp(tmp_path, capsys):
     names = [c['name'] for c in header['columns']]
     assert header['remote'] == {'host': None}
     assert rows[:, names.index('ref_v_r')].max() > 0.1
+    from tipbot_fw.gains import load_gains
+    from tipbot_fw.record.replay import replay
+    np.testing.assert_array_equal(replay(header, rows, load_gains(PHYSICAL_GAINS)), rows)     # exact
 
 
 def test_remote_and_course_together_are_refused(tmp_path, capsys):
@@ -157,3 +160,76 @@ def test_a_stall_skips_a_live_plan_but_leaves_the_ticks_rows():
     for _ in range(LIVE_KEEP_ROWS):     # the ticks after it find their rows until the slack refills
         core.step((0, 0, 0, 0), (0, 0), buf, 0)
     assert core.reference()[2] > 0
+
+
+class _Steady(object):
+    host = 'test'
+
+    def poll(self, now_s):
+        return 0.1, 0.0
+
+
+def _driven_loop(clock, read, duration_s):
+    """A loop driven by a remote that always asks 0.1 m/s, on a brick whose reads are `read`."""
+    from tipbot_fw.config import load_config
+    from tipbot_fw.cores.core import make_core
+    from tipbot_fw.drive.remote import live_plan, remote_side
+    from tipbot_fw.gains import load_gains
+    from tipbot_fw.io.devices import MemoryDevices
+    from tipbot_fw.loop import ControlLoop
+    from tipbot_fw.record import logfile
+    gains = load_gains(PHYSICAL_GAINS)
+    core = make_core(gains, load_config())
+    core.set_gyro_bias(0.0)
+    log = logfile.LogBuffer(2000, core.rows)
+    plan = live_plan(gains, core)
+    loop = ControlLoop(MemoryDevices(source=read), core, clock, log, gains.ts_s, 8.0, duration_s=duration_s,
+                       overrun_window_s=0.3, max_lost_s=0.04, side=remote_side(_Steady(), plan, gains.ts_s))
+    return loop, log
+
+
+@pytest.mark.parametrize('stall_at', range(30, 38))
+def test_after_a_stall_the_side_task_refills_the_plan_before_it_runs_dry(stall_at):
+    """A 100 ms stall (19 periods: the core's skip leaves 12 rows), then ticks that leave no
+    slack: the side task waits its longest (loop.SIDE_WAIT_S, 10 ticks) for slack; called at once
+    after the skip, it refills the plan in time, whatever the phase of its POLL_TICKS."""
+    from tipbot_fw.io.clock import VirtualClock
+    clock = VirtualClock()
+    n = [0]
+
+    def read():
+        n[0] += 1
+        if n[0] == stall_at:
+            clock.advance(0.1001)
+        elif stall_at < n[0] <= stall_at + 30:
+            clock.advance(0.0045)       # 0.5 ms of slack: less than loop.SLACK_S
+        return (0, 0, 0, 0), (0, 0)
+    loop, log = _driven_loop(clock, read, 1.0)
+    stats = loop.run()          # a tick without a row would raise IndexError
+    assert stats.ticks == 200 and stats.skipped_periods == 19
+    assert loop.core.reference()[2] == pytest.approx(0.1, abs=1e-4)     # still driving at the command
+
+
+def test_the_live_plans_steady_rows_are_the_row_at_a_time_ones():
+    """Both channels at constant rates: the rows made by additions in C are those of the
+    smoothstep's arithmetic (positions within one integer of theirs: the sums' rounding)."""
+    lsb = [1.4e-6, 1.4e-6, 2.0 ** -16, 2.0 ** -16, 2.0 ** -16, 2.0 ** -16]
+    fast = LivePlan(LIMITS, 0.2, 0.005, lsb, 2 ** 40)
+    slow = LivePlan(LIMITS, 0.2, 0.005, lsb, 2 ** 40)
+    for plan in (fast, slow):
+        plan.command(0.2, math.radians(20.0))
+    slow.steady_rows = lambda t: None       # never steady: every row through the smoothsteps
+    fast_rows, slow_rows = [], []
+    for k in range(400):
+        if k == 200:
+            fast.command(-0.1, 0.0)
+            slow.command(-0.1, 0.0)
+        for plan, out in ((fast, fast_rows), (slow, slow_rows)):
+            if len(plan.rows) < 14:
+                plan.fill()
+            out.append(plan.rows.popleft())
+    a = np.frombuffer(b''.join(fast_rows), dtype='<i8').reshape(-1, 6)
+    b = np.frombuffer(b''.join(slow_rows), dtype='<i8').reshape(-1, 6)
+    assert fast.steady is not None              # it did make steady rows
+    assert np.array_equal(a[:, 2:], b[:, 2:]) and np.abs(a[:, :2] - b[:, :2]).max() <= 1
+    assert np.all(np.diff(a[100:200, 0]) != 0)   # the positions move every tick

@@ -110,6 +110,24 @@ def test_mem_cost_counts_only_the_guest_mappings():
     assert _mem_cost().guest_smaps_kb(smaps) == (2300, 1300)
 
 
+def test_mem_cost_splits_a_page_between_the_runs_processes_that_map_it():
+    """The run's own PSS: a page counts once for the run, split between those of its processes
+    that map it; the three processes' PSS add up to the run's distinct pages."""
+    import numpy as np
+    mc = _mem_cost()
+    page_kb = os.sysconf("SC_PAGE_SIZE") / 1024.0
+    pages = {"supervisor": {"python3": np.array([1, 2, 3], dtype=np.uint64)},
+             "guard": {"python3": np.array([1, 2, 4], dtype=np.uint64)},
+             "controller": {"python3": np.array([1, 5], dtype=np.uint64), "[anon]": np.array([6], dtype=np.uint64)}}
+    kb = mc.run_memory_kb(pages)
+    assert kb["supervisor"]["python3"][0] == 3 * page_kb
+    assert abs(kb["supervisor"]["python3"][1] - (1 / 3 + 1 / 2 + 1) * page_kb) < 1e-9
+    assert abs(kb["controller"]["python3"][1] - (1 / 3 + 1) * page_kb) < 1e-9
+    assert kb["controller"]["[anon]"] == [page_kb, page_kb]
+    total = sum(mc.totals_kb(named)[1] for named in kb.values())
+    assert abs(total - 6 * page_kb) < 1e-9
+
+
 def test_the_whole_tick_bench_runs_on_the_real_device_layer_and_clock():
     p = subprocess.run([sys.executable, "-m", "tipbot_fw.bench", "--ticks", "40", "--whole"], cwd=REPO,
                        stdout=subprocess.PIPE, stderr=subprocess.PIPE, universal_newlines=True, timeout=60)

@@ -9,6 +9,9 @@ def _main():
     # process with one line and, once devices are open, with the motors stopped.
     guard = SignalGuard().install()
     try:
+        # numpy first, without the subpackages a run never loads (tipbot_fw.lean_numpy)
+        from tipbot_fw.lean_numpy import import_numpy
+        import_numpy()
         from tipbot_fw.cli import main
     except (KeyboardInterrupt, Terminated, ImportError) as e:
         if isinstance(e, ImportError):

@@ -9,9 +9,9 @@ command line unchanged (the launcher passes its arguments on).
 """
 import argparse
 import os
+import sys
 
 from tipbot_fw.guard import exit_codes, heartbeat, safety
-from tipbot_fw import experiments, identify
 from tipbot_fw.record import logfile
 from tipbot_fw.calibration import calibrate_gyro
 from tipbot_fw.io.clock import MonotonicClock
@@ -44,7 +44,12 @@ def _positive_int(text):
     return int(text)
 
 
-def _parser():
+def _parser(argv=None):
+    """The command line's parser. The experiments' and identify's own options come from their
+    modules, imported only when ``argv`` (default sys.argv) names their command or asks for help:
+    a run does not keep them in the brick's memory."""
+    argv = sys.argv[1:] if argv is None else argv
+    full = any(a in argv for a in ('fall-test', 'swing-test', 'identify', '-h', '--help'))
     p = argparse.ArgumentParser(prog='python3 -m tipbot_fw', description='tipbot firmware',
                                 epilog=exit_codes.help_text(),
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -83,14 +88,16 @@ def _parser():
     sp.add_argument('--swing-log', metavar='LOG', action='append', default=[],
                     help='a swing test\'s log (python3 -m tipbot_fw swing-test), once per joint')
     common(sp)
-    sp = sub.add_parser('fall-test', help='the fall test: hold the robot upright, let go when told; the joints held '
-                        '(tipbot_fw.experiments)', description=experiments.__doc__.split('\n\n')[0])
-    experiments.add_arguments(sp, 'fall')
-    common(sp)
-    sp = sub.add_parser('swing-test', help='the swing test: link 1 held upright, one joint swings its link '
-                        '(tipbot_fw.experiments)', description=experiments.__doc__.split('\n\n')[0])
-    experiments.add_arguments(sp, 'swing')
-    common(sp)
+    for kind, help_text in (('fall', 'the fall test: hold the robot upright, let go when told; the joints held '
+                                      '(tipbot_fw.experiments)'),
+                            ('swing', 'the swing test: link 1 held upright, one joint swings its link '
+                                      '(tipbot_fw.experiments)')):
+        sp = sub.add_parser(kind + '-test', help=help_text)
+        if full:
+            from tipbot_fw import experiments
+            sp.description = experiments.__doc__.split('\n\n')[0]
+            experiments.add_arguments(sp, kind)
+        common(sp)
     sp = sub.add_parser('calibrate', help='measure and print the gyro bias')
     common(sp)
     sp = sub.add_parser('bench', help='timings on the robot: reads, writes, compute, loop ticks')
@@ -99,9 +106,11 @@ def _parser():
                     help='ticks timed for each measure (default 2000: 10 s at 5 ms); the motors get 1 %% duties')
     common(sp)
     sp = sub.add_parser('identify', help='drive ONE motor, record its run-up and run-down for the '
-                        'host\'s motor identification (python -m hostsim identify LOG)',
-                        description=identify.__doc__.split('\n\n')[0])
-    identify.add_arguments(sp)
+                        'host\'s motor identification (python -m hostsim identify LOG)')
+    if full:
+        from tipbot_fw import identify
+        sp.description = identify.__doc__.split('\n\n')[0]
+        identify.add_arguments(sp)
     common(sp)
     return p
 
@@ -144,14 +153,15 @@ def main(argv=None, guard=None, environ=None):
 
 
 def _main(argv, guard, hbt, supervisor_problem):
-    args = _parser().parse_args(argv)
+    args = _parser(argv).parse_args(argv)
     if args.command is None:
-        _parser().print_help()
+        _parser(argv).print_help()
         return safety.EXIT_INVALID
     if supervisor_problem:
         _say('refused to start: {}; no log: nothing ran'.format(supervisor_problem))
         return safety.EXIT_INVALID
     if args.command == 'identify':   # one motor, not the robot's full set of devices
+        from tipbot_fw import identify
         return identify.main_identify(args, say=_say)
     args.heartbeat = hbt
     if args.command == 'check' and args.gains and not args.fall_log:
@@ -375,6 +385,7 @@ def _bench(args, config, gains, devices):
 
 def _experiment(kind):
     def command(args, config, gains, devices):
+        from tipbot_fw import experiments
         return experiments.main_experiment(kind, args, config, devices, heartbeat=args.heartbeat)
     return command
 

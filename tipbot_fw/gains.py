@@ -10,7 +10,12 @@ K, K_w in the file's state units), selectable for reproducing the paper, and the
 then held to physical bounds (check_physics: the tables SCALAR_BOUNDS, MATRIX_BOUNDS,
 STRUCTURE_CHECKS, one line per field or property, the Kalman block's among them).
 """
-import hashlib
+try:
+    # the interpreter's own SHA-256: hashlib would load OpenSSL's libcrypto for it, about 3 MB of
+    # the controller's memory for one hash of a small file (docs/benchmarks.md, "Memory")
+    from _sha256 import sha256
+except ImportError:                 # an interpreter without that module (3.12 renamed it)
+    from hashlib import sha256
 
 import numpy as np
 
@@ -384,7 +389,7 @@ def load_gains_document(path, expected_ts_s=None):
     """-> (the file's document as read, its Gains): load_gains for a tool that also derives
     another document from the file's (the host's baselines); the document has passed every check."""
     doc, data = fields.read_json(path, GainsError)
-    return doc, gains_from_dict(doc, path, hashlib.sha256(data).hexdigest(), expected_ts_s)
+    return doc, gains_from_dict(doc, path, sha256(data).hexdigest(), expected_ts_s)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -37,7 +37,10 @@ rows when the ring in memory is about to be overwritten, the battery when it is 
 period late. The side task waits at most SIDE_WAIT_S for slack, then runs anyway: a cue (let go,
 balancing, a stop's tone) must reach the owner within a fraction of a human reaction time, and
 one light write, note or datagram (0.1-0.45 ms) makes a tick at most slightly late, which the
-overrun stop (time lost in a window) rides out. Until the next tick with work due, a tick pays one integer comparison for all of it.
+overrun stop (time lost in a window) rides out. After a tick that skipped whole periods the side
+task is due at once: a drive's live plan lost the skipped periods' rows (KalmanCore.skip keeps
+12) and its side task makes them. Until the next tick with work due, a tick pays one integer
+comparison for all of it.
 
 Motors are not stopped here: the caller (tipbot_fw.session) stops them in its finally clause.
 """
@@ -262,6 +265,8 @@ class ControlLoop(object):
                 late = now() - release
                 if late > 0.0:
                     release, consecutive = self._late_tick(k, late, release, consecutive)
+                    if late >= period:  # periods skipped: a live plan lost rows (the core's skip),
+                        side_due = due = k      # which its side task makes: due at once
                 else:
                     consecutive = 0
                 if k >= due:        # work between ticks: one comparison a tick until some is due

@@ -4,8 +4,10 @@ A side task is a callable task(k) -> the tick at which it wants to be called nex
 the number of ticks done, so the newest log row is tick k - 1's. tipbot_fw.loop calls its one
 side task after the writes, the log's chunk and the battery read, before it sleeps, in the
 first tick from the one it asked for that leaves enough slack (loop.SLACK_S): a call may come
-a few ticks late, never early. Between two calls a side task costs the loop one integer
-comparison per tick. Side tasks never touch the motors and never raise on a device of their
+a few ticks late, and early only after a tick that skipped whole periods (a stall: a drive's
+live plan must make the rows the skip took: the cues and the drives check their own due
+ticks, telemetry sends the newest row once more).
+Between two calls a side task costs the loop one integer comparison per tick. Side tasks never touch the motors and never raise on a device of their
 own (lights, speaker, network).
 """
 

@@ -12,13 +12,18 @@ dropped), within the gains' limits (clipped to them: a remote's keys ask for 'fa
 the fastest allowed). With no command obeyed for TIMEOUT_S the command is zero: the robot
 comes to rest and keeps balancing.
 
-The reference is made in the loop's slack (a side task, tipbot_fw.side_tasks), LOOKAHEAD_TICKS ahead
-of the ticks, a row at a time in scalar Python (about 32,000 instructions on the brick; with
-numpy, whose every call costs about 20,000, one row was 540,000: more than the slack of a tick):
-each change of a channel's command a smoothstep as a course's (tipbot_fw.drive.plan), a change that
-arrives during another one waiting for it to end. The core copies one row a tick
-(KalmanCore.set_live): the loop runs its side task at least every 10 ticks, and a stall's skip
-leaves the plan 12 rows (tipbot_fw.cores.kalman.LIVE_KEEP_ROWS).
+The reference is made in the loop's slack (a side task, tipbot_fw.side_tasks), in scalar Python
+(with numpy, whose every call costs the brick about 20,000 instructions, a row was 540,000): each
+change of a channel's command a smoothstep as a course's (tipbot_fw.drive.plan), a change that
+arrives during another one waiting for it to end. The side task comes every POLL_TICKS: it
+polls the receiver, takes a command to the plan only when it changed, and makes rows in
+batches up to LOOKAHEAD_TICKS ahead when they run low. While both channels keep a constant rate
+(no change under way: the usual case, a key held or none) the rows are made by additions, in C
+(_SteadyRows: about 4,000 instructions a row against 30,000 through the smoothsteps), so a
+driven tick costs little more than a course's (`make bench`, docs/benchmarks.md). The core takes
+one row a tick (KalmanCore.set_live); a stall's skip leaves the plan 12 rows
+(tipbot_fw.cores.kalman.LIVE_KEEP_ROWS) and the loop then calls the side task at once. A command
+reaches the rows after those already made: 14 to 28 ticks (70-140 ms), besides the poll's 20 ms.
 
 Python 3.5, standard library.
 """
@@ -26,6 +31,7 @@ import collections
 import math
 import socket
 import struct
+from itertools import accumulate, chain, repeat
 
 from tipbot_fw.drive.course import channel_limits, transition_s
 from tipbot_fw.drive.plan import smoothstep
@@ -34,7 +40,14 @@ from tipbot_fw.cores.kalman import REF
 MAGIC = b'TBDR'
 COMMAND = struct.Struct('<4sIff')
 TIMEOUT_S = 0.3
-LOOKAHEAD_TICKS = 24        # beyond the loop's longest wait for its side task (10 ticks at 5 ms) and the 12 a skip keeps
+# The side task comes every POLL_TICKS (20 ms at 5 ms: a key's or a datagram's latency, not a
+# tick's) and then makes rows up to LOOKAHEAD_TICKS ahead if fewer than REFILL_BELOW would be left
+# at its next call: batches of 11 or more. REFILL_BELOW is beyond the loop's longest wait for its
+# side task (10 ticks at 5 ms); a stall's skip leaves 12 rows (kalman.LIVE_KEEP_ROWS), after which
+# the loop calls the side task at once (tipbot_fw.loop)
+LOOKAHEAD_TICKS = 28
+REFILL_BELOW = 14
+POLL_TICKS = 4
 MAX_DATAGRAMS = 32          # read in one call, at most
 
 
@@ -147,6 +160,49 @@ class _Channel(object):
         self.last_rate = rate
         return self.pos, rate, acc
 
+    def steady_from(self, t):
+        """The constant rate of every tick from time t on, if nothing changes it before a new
+        command (no change under way or waiting, and the last tick's rate already that one), or
+        None. Then advance() is position += rate dt and acceleration 0 (smoothstep at x = 1:
+        the whole change, no acceleration)."""
+        if self.pending is not None or t < self.t0 + self.T:
+            return None
+        rate = self.v0 + self.dv
+        return rate if rate == self.last_rate else None
+
+
+class _SteadyRows(object):
+    """The rows of both channels at constant rates v, w (rad/s) from positions s, psi: each
+    wheel's position advanced by a constant step in its integers, the speeds' integers made
+    once, the accelerations' zero; the additions, the conversions and the packing in C
+    (itertools, map), for a Python loop's bytecodes would be most of a row's cost. `left`: the
+    rows it may make before a position leaves the fixed-point range (+-top: 5 km out), after
+    which the rows are made one at a time, clipped."""
+
+    def __init__(self, s, psi, v, w, dt, h, lsb, top):
+        self.s, self.psi, self.ds, self.dpsi = s, psi, v * dt, w * dt
+        self.made = 0
+        l0, l1, l2, l3, _, _ = lsb
+        self.r, self.r_step = (s + psi * h) / l0, (self.ds + self.dpsi * h) / l0
+        self.l, self.l_step = (s - psi * h) / l1, (self.ds - self.dpsi * h) / l1
+        self.v_r, self.v_l = int((v + w * h) / l2), int((v - w * h) / l3)
+        room = [(top - abs(x)) / abs(step) for x, step in ((self.r, self.r_step), (self.l, self.l_step)) if step]
+        self.left = int(max(0.0, min(room))) if room else 1 << 62
+
+    def make(self, n):
+        """An iterator of the next n rows (bytes)."""
+        r, l, r_step, l_step = self.r, self.l, self.r_step, self.l_step
+        d_r = map(int, accumulate(chain((r + r_step,), repeat(r_step, n - 1))))
+        d_l = map(int, accumulate(chain((l + l_step,), repeat(l_step, n - 1))))
+        self.r, self.l = r + n * r_step, l + n * l_step
+        self.made += n
+        self.left -= n
+        return map(REF.pack, d_r, d_l, repeat(self.v_r), repeat(self.v_l), repeat(0), repeat(0))
+
+    def positions(self):
+        """(s, psi) after the rows made."""
+        return self.s + self.made * self.ds, self.psi + self.made * self.dpsi
+
 
 class LivePlan(object):
     """The reference rows of a remote's commands, made ahead of the ticks (module docstring)."""
@@ -158,8 +214,10 @@ class LivePlan(object):
         self.track_m, self.dt, self.ref_lsb, self.top = track_m, period_s, ref_lsb, top
         self.rows = collections.deque()
         self.made = 0               # ticks made so far (the next row is tick made + 1's)
+        self.steady = None          # the _SteadyRows both channels are making, if they are steady
 
     def command(self, speed_mps, yaw_rate_rad_s):
+        self._leave_steady()
         t = self.made * self.dt
         # one budget for both (as a course's segments): the turn gives way to the speed
         v_max, w_max = self.fwd.limit, self.yaw.limit
@@ -169,20 +227,51 @@ class LivePlan(object):
         self.yaw.command(max(-room, min(room, yaw_rate_rad_s)), t)
 
     def fill(self, ahead=LOOKAHEAD_TICKS):
-        """Rows until `ahead` wait for the ticks (drive.reference_ints' arithmetic, a row at a time)."""
+        """Rows until `ahead` wait for the ticks (drive.reference_ints' arithmetic): while both
+        channels are steady by additions (module docstring, _SteadyRows), else a row at a time."""
         n = ahead - len(self.rows)
+        if n <= 0:
+            return
+        first = self.made + 1
+        self.made += n
+        run = self.steady
+        if run is None:
+            run = self.steady = self.steady_rows(first * self.dt)
+        if run is not None and run.left >= n:
+            self.rows.extend(run.make(n))
+        else:
+            self._leave_steady()
+            self._rows_changing(first, n)
+
+    def steady_rows(self, t):
+        """The _SteadyRows of the plan from time t on, or None if a channel is changing."""
+        v, w = self.fwd.steady_from(t), self.yaw.steady_from(t)
+        if v is None or w is None:
+            return None
+        return _SteadyRows(self.fwd.pos, self.yaw.pos, v, w, self.dt, 0.5 * self.track_m, self.ref_lsb, self.top)
+
+    def _leave_steady(self):
+        """The channels' positions where the steady rows left them (a change, or the range's end)."""
+        if self.steady is not None:
+            self.fwd.pos, self.yaw.pos = self.steady.positions()
+            self.steady = None
+
+    def _rows_changing(self, first, n):
+        """n rows from tick `first`, a channel changing its rate: each through its smoothstep."""
         h = 0.5 * self.track_m
         l0, l1, l2, l3, l4, l5 = self.ref_lsb
         top = self.top
-        for k in range(self.made + 1, self.made + 1 + n):
-            t = k * self.dt
-            s, v, a = self.fwd.advance(t, self.dt)
-            psi, w, al = self.yaw.advance(t, self.dt)
+        dt = self.dt
+        fwd, yaw = self.fwd.advance, self.yaw.advance
+        pack, append = REF.pack, self.rows.append
+        for k in range(first, first + n):
+            t = k * dt
+            s, v, a = fwd(t, dt)
+            psi, w, al = yaw(t, dt)
             d_r = max(-top, min(top, int((s + psi * h) / l0)))
             d_l = max(-top, min(top, int((s - psi * h) / l1)))
-            self.rows.append(REF.pack(d_r, d_l, int((v + w * h) / l2), int((v - w * h) / l3),
-                                      int((a + al * h) / l4), int((a - al * h) / l5)))
-        self.made += max(n, 0)
+            append(pack(d_r, d_l, int((v + w * h) / l2), int((v - w * h) / l3),
+                        int((a + al * h) / l4), int((a - al * h) / l5)))
 
 
 def live_plan(gains, core):
@@ -196,9 +285,16 @@ def live_plan(gains, core):
 
 
 def remote_side(receiver, plan, period_s):
-    """The side task: the newest command, then the rows ahead; called every tick it can be."""
+    """The side task, every POLL_TICKS: the newest command (to the plan only when it changed),
+    then the rows ahead if fewer than REFILL_BELOW would be left at its next call."""
+    last = [None]
+
     def task(k):
-        plan.command(*receiver.poll(k * period_s))
-        plan.fill()
-        return k + 1
+        command = receiver.poll(k * period_s)
+        if command != last[0]:
+            last[0] = command
+            plan.command(*command)
+        if len(plan.rows) < REFILL_BELOW + POLL_TICKS:
+            plan.fill()
+        return k + POLL_TICKS
     return task

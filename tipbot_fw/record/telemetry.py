@@ -29,7 +29,6 @@ a full buffer) is counted and the loop goes on. Python 3.5, standard library onl
 `python -m hostsim watch` decodes with the same module.
 """
 import operator
-import socket
 import struct
 
 from tipbot_fw.vocabulary import INTEGRATOR_NAMES, STATE_NAMES, integrator_count
@@ -173,6 +172,7 @@ class TelemetrySender(object):
     here, before any device is touched (TelemetryError if it cannot be)."""
 
     def __init__(self, target, every=DEFAULT_EVERY):
+        import socket       # here: a run without telemetry does not keep the socket modules in memory
         host, port = parse_target(target)
         try:
             family, kind, proto, _, address = socket.getaddrinfo(host, port, 0, socket.SOCK_DGRAM)[0]
