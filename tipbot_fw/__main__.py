@@ -11,7 +11,7 @@ def _main():
     try:
         # numpy first, without the subpackages a run never loads (tipbot_fw.lean_numpy)
         from tipbot_fw.lean_numpy import import_numpy
-        import_numpy()
+        import_numpy(may_retry=lambda: guard.raised is None)
         from tipbot_fw.cli import main
     except (KeyboardInterrupt, Terminated, ImportError) as e:
         if isinstance(e, ImportError):

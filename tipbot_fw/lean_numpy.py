@@ -59,18 +59,31 @@ class _Finder(object):
         pass
 
 
-def import_numpy():
+def import_numpy(may_retry=lambda: True):
     """numpy, imported with the DEFERRED subpackages left out (or as it is, if already
-    imported). -> the numpy module."""
+    imported). -> the numpy module.
+
+    Fail-safe: should a numpy's own import need one of them after all (a numpy other than the
+    ones whose sources were read), that import fails on the placeholder; then numpy is imported
+    again, whole, as a plain ``import numpy`` would: a run costs its memory, never its start.
+    ``may_retry()`` False (a signal, which numpy's C extensions turn into an ImportError, ended
+    the first try: tipbot_fw.__main__) re-raises instead."""
     if 'numpy' in sys.modules:
         return sys.modules['numpy']
     finder = _Finder()
     sys.meta_path.insert(0, finder)
     try:
         import numpy
+        return numpy
+    except Exception:
+        if not may_retry():
+            raise
     finally:
         sys.meta_path.remove(finder)
         for name in DEFERRED:
             if isinstance(sys.modules.get(name), Deferred):
                 sys.modules.pop(name).ready = True
+    for name in [m for m in sys.modules if m == 'numpy' or m.startswith('numpy.')]:
+        del sys.modules[name]       # what the first try left half made
+    import numpy
     return numpy
