@@ -75,6 +75,18 @@ def test_launcher_runs_the_firmware_with_the_deployed_files(tmp_path):
     assert "'--config', '%s'" % (d / "config.json") in p.stdout
 
 
+def test_the_owners_files_named_relative_to_where_the_launcher_starts_are_found_from_logs(tmp_path):
+    d = make_install_dir(tmp_path)
+    (tmp_path / "mine.json").write_text("{}")
+    p = subprocess.run([sys.executable, str(d / "tipbot"), "--config", "mine.json", "--gains=g.json",
+                        "--course", "c.json", "--log", "run.log"], cwd=str(tmp_path),
+                       stdout=subprocess.PIPE, stderr=subprocess.PIPE, universal_newlines=True)
+    assert "'--config', '%s'" % (tmp_path / "mine.json") in p.stdout, p.stdout + p.stderr
+    assert "'--gains=%s'" % (tmp_path / "g.json") in p.stdout
+    assert "'--course', '%s'" % (tmp_path / "c.json") in p.stdout
+    assert "'--log', 'run.log'" in p.stdout         # a log lands in logs/
+
+
 def test_launcher_without_gains_says_what_to_do(tmp_path):
     d = make_install_dir(tmp_path, gains=False)
     p = subprocess.run([sys.executable, str(d / "tipbot")], stdout=subprocess.PIPE,

@@ -53,6 +53,8 @@ def test_null_bias_time_constant_disables_tracking(tmp_path):
     ({'limits': {'max_lost_s': 0}}, r'field limits.max_lost_s must be a number in \(0, 0.1\], got 0'),
     ({'limits': {'max_lost_s': 1e6}}, r'field limits.max_lost_s must be a number in \(0, 0.1\], got 1000000.0'),
     ({'limits': {'max_lost_s': None}}, r'field limits.max_lost_s must be a number in \(0, 0.1\], got None'),
+    ({'limits': {'max_saturated_s': 0.1}}, r'field limits.max_saturated_s must be a number in \[0.25, 5.0\], got 0.1'),
+    ({'limits': {'max_saturated_s': None}}, r'field limits.max_saturated_s must be a number in \[0.25, 5.0\], got None'),
     ({'limits': {'max_lost_s': 0.06, 'overrun_window_s': 0.1}},
      r'field limits.max_lost_s is 0.06 s, more than half of limits.overrun_window_s = 0.1 s: a loop running at '
      r'half its rate would never be stopped$'),

@@ -10,6 +10,7 @@ import fw_support as S
 from conftest import PAPER_GAINS, PHYSICAL_GAINS
 from tipbot_fw.cores import fixedpoint as fx
 from tipbot_fw.cores import kalman
+from tipbot_fw import loop as fw_loop
 from tipbot_fw.record import logfile
 from tipbot_fw.guard import plausibility
 from tipbot_fw.record import replay as fw_replay
@@ -313,10 +314,12 @@ def test_the_integrators_take_out_an_offset_the_filter_cannot_see():
 
 
 @pytest.mark.parametrize('battery_period_s', [1.0, 5.0])     # the wind-down's own second, whatever the battery's
-def test_the_integrators_stay_within_their_authority_when_the_wheels_are_held(tmp_path, battery_period_s):
+def test_the_integrators_stay_within_their_authority_when_the_wheels_are_held(tmp_path, battery_period_s, monkeypatch):
     # the wheels pushed 30 cm ahead of their zero and held there (a hand, a wall): without a limit
     # the integrators would reach 2 m s in 8 s; the loop keeps them within kalman.integral.limit_m_s
-    # once a second (outside the tick), the log flags it and the replay does the same to the bit
+    # once a second (outside the tick), the log flags it and the replay does the same to the bit.
+    # The law holds the wheels at their duty limit meanwhile, which the saturation stop ends after
+    # limits.max_saturated_s (tests/test_fw_loop.py): off here, to see the integrators' long hold
     gains = committed('physical')
     hold_m = 0.3
     held = int(round(hold_m / (gains.kalman.wheel_radius_m * 2 * math.pi / 360)))
@@ -328,6 +331,7 @@ def test_the_integrators_stay_within_their_authority_when_the_wheels_are_held(tm
         return (c, c, 0, 0), (0, 0)
     dev = MemoryDevices(source=source)
     log = str(tmp_path / 'held.log')
+    monkeypatch.setattr(fw_loop, 'SATURATED_SHARE', 2.0)
     code, header = run_session(dev, gains, S.fw_config(battery_period_s=battery_period_s), VirtualClock(),
                                log_path=log, duration_s=8.0,
                                say=lambda m: None, cues=OwnerCues(streams=()))

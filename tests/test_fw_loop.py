@@ -12,7 +12,7 @@ from tipbot_fw.io.clock import VirtualClock
 from tipbot_fw.cores.core import make_core
 from tipbot_fw.io.devices import MemoryDevices
 from tipbot_fw.loop import SIDE_WAIT_S, ControlLoop
-from tipbot_fw.guard.safety import OverrunLimit, Terminated
+from tipbot_fw.guard.safety import OverrunLimit, Saturated, Terminated
 from tipbot_fw.session import run_session
 from tipbot_fw import vocabulary
 
@@ -227,6 +227,50 @@ def test_a_stall_longer_than_the_longest_ridden_out_stops_the_loop_and_is_counte
         loop.run()
     # the periods the last tick skipped are in the run's count (the log's TAIL)
     assert log.count == 30 and loop.stats.overruns == 1 and loop.stats.skipped_periods == 39
+
+
+def test_a_wheel_held_at_its_saturation_stops_the_loop_after_max_saturated_s():
+    # a gyro that reads a steady 20 deg/s while the wheels stand (a frozen gyro, an estimate
+    # that tilts on and on; wheels blocked or their encoders stopped): the law holds the wheels
+    # at their duty limit, which no balancing does for long; without the stop it would drive
+    # them so until the run's end (5 s)
+    dev = MemoryDevices()
+    dev.gyro = (0, 20)
+    loop, _, log = make_loop(VirtualClock(), dev=dev, duration_s=5.0, max_saturated_s=0.5)
+    with pytest.raises(Saturated, match=r'^motor held at its limit: the right_wheel motor at its duty limit in '
+                                        r'100 % of the ticks of the last 0\.50 s \(limits.max_saturated_s = 0\.5 s\)'):
+        loop.run()
+    flags = log.mem[:log.count, log.rows.flags_index].astype(int)
+    first = int(np.argmax(flags & vocabulary.FLAG_BITS['sat_r']))
+    assert (flags[first:] & vocabulary.FLAG_BITS['sat_r']).all()
+    # counted once a chunk (50 ticks): within a chunk after the window's 100 ticks
+    assert first + 100 <= log.count <= first + 100 + logfile.CHUNK_ROWS
+
+
+def test_the_saturation_stop_counts_each_motors_flags_over_its_window_across_the_ring():
+    # rows whose flags also carry an overrun and skipped periods; the ring (120 rows) shorter
+    # than the window (1 s, 200 ticks), counted once a chunk (50 rows)
+    loop, _, log = make_loop(VirtualClock(), capacity=120, max_saturated_s=1.0)
+    loop._plan_housekeeping()
+    column = log.rows.flags_index
+    sat_l = vocabulary.FLAG_BITS['sat_l']
+    k = 0
+
+    def chunk(saturated_of_20):
+        nonlocal k
+        for i in range(k, k + logfile.CHUNK_ROWS):
+            log.mem[i % log.capacity, column] = OVERRUN + (3 << vocabulary.SKIP_SHIFT) + (
+                sat_l if i % 20 < saturated_of_20 else vocabulary.FLAG_BITS['sat_r'] * (i % 2))
+        k += logfile.CHUNK_ROWS
+        loop._watch_saturation(k)
+
+    for _ in range(12):
+        chunk(17)           # 85 % of the ticks of every window: a motor busy, not lost
+    assert loop.stats.max_saturated_share == pytest.approx(0.85)
+    chunk(20)               # (3 x 85 + 100) / 4: 89 %
+    with pytest.raises(Saturated, match=r'the left_wheel motor at its duty limit in 92 % of the ticks of the '
+                                        r'last 1\.00 s \(limits.max_saturated_s = 1.0 s\) up to tick 699'):
+        chunk(20)           # (2 x 85 + 2 x 100) / 4
 
 
 def test_back_from_a_stall_the_supervisor_ended_the_run_ends_as_the_supervisors_stall():

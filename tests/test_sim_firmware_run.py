@@ -116,3 +116,46 @@ def test_the_world_lets_go_where_the_sessions_own_timing_says():
     world.t_release_s = timing["calibration_end_s"] - 0.005       # a tick early: the calibration saw it move
     with pytest.raises(SimulationError, match="let go at"):
         check_timing(world, run.header, 0.005)
+
+
+@pytest.mark.parametrize("sensor", ["gyro", "right_encoder"])
+def test_a_sensor_that_stops_mid_run_ends_with_the_motors_stopped(sensor):
+    """A sensor whose reading stops changing 2 s after the let-go, with no error to read: the
+    gyro (its UART stops, the value stays) lets the robot fall while the estimate stays upright;
+    the right wheel's encoder (a loose cable) makes the law drive that wheel on and on while the
+    robot rolls away upright. Neither is implausible on its own; the saturation stop
+    (tipbot_fw.loop) ends both (without it both ran the whole 12 s, the fallen robot's wheels
+    at 7.4 V). A floor at 90 degrees, where the fallen robot lies."""
+    from hostsim.sim.firmware_build import build_run
+    from hostsim.sim.firmware_readback import read_back
+    from hostsim.sim.firmware_run import _session
+    sc = replace(load_scenario("section8_physical"), duration_s=12.0, modes=("firmware",))
+    run = build_run(sc, sysfs=False)
+    world, sensors = run.world, run.world.sensors
+    t_fault = world.t_release_s + 2.0
+    encoders, gyro, publish, held = sensors.encoders, sensors.gyro, world.publish, {}
+    now = [0.0]
+
+    def stuck_encoders(x):
+        counts = encoders(x)
+        if sensor == "right_encoder" and now[0] >= t_fault:
+            return (held.setdefault("enc", counts[0]),) + tuple(counts[1:])
+        return counts
+
+    def stuck_gyro(x, t_s):
+        return held.setdefault("gyro", gyro(x, t_s)) if sensor == "gyro" and t_s >= t_fault else gyro(x, t_s)
+
+    def on_the_floor(t_s):
+        now[0] = t_s
+        x = world.plant.x
+        if abs(x[2]) > math.pi / 2:
+            x[2], x[7] = math.copysign(math.pi / 2, x[2]), 0.0
+        publish(t_s)
+
+    sensors.encoders, sensors.gyro, world.publish = stuck_encoders, stuck_gyro, on_the_floor
+    code, header, _ = _session(run, None, sc.duration_s)
+    r = read_back(run, code, header, None, None)
+    assert r.exit_code == 6 and r.stop_reason == "saturated", header.get("stop_message")
+    assert 1.0 < r.t_s[-1] - 2.0 < 9.0
+    wheel = "right_wheel" if sensor == "right_encoder" else "_wheel"
+    assert wheel in header["stop_message"]

@@ -81,6 +81,21 @@ def test_the_tree_the_environment_names_is_the_supervisors_too(robot):
     assert 'no tacho motor found' not in err
 
 
+def test_the_supervisor_reads_the_configuration_the_controller_runs_with(robot, tmp_path):
+    # the launcher passes the deployed --config first; an owner's ./tipbot --config mine.json comes
+    # after it, and the controller's argparse takes the last: so must the supervisor (its hold)
+    deployed = dict(faults.QUICK, limits={'max_stall_s': 0.5})
+    (tmp_path / 'cfg.json').write_text(json.dumps(deployed))
+    mine = tmp_path / 'mine.json'
+    mine.write_text(json.dumps(dict(faults.QUICK, limits={'max_stall_s': 0.05})))
+    r = robot(extra=['--config', str(mine)])
+    assert r.wait_driving(), r.finish()
+    t = faults.inject(r, 'stop-controller')
+    status, out, err = r.finish()
+    assert t is not None and 0.05 <= t < 0.05 + LIMIT_S, (t, err)
+    assert status == safety.EXIT_WATCHDOG and 'limits.max_stall_s = 0.05 s' in err, err
+
+
 def test_a_continued_controller_cannot_restart_the_motors(robot):
     r = robot()
     assert r.wait_driving()

@@ -32,6 +32,12 @@ Every field is validated; errors name the file and the dotted field path. Fields
                                                holds a frozen controller's last duties that long,
                                                then stops the motors; a loop back from a longer
                                                stall stops (docs/architecture.md: the loop's timing)
+  limits.max_saturated_s                       a motor whose duty sits at its saturation in 90 % of
+                                               the ticks of this long stops the run (exit 6): the
+                                               law saturates only for a moment while it balances,
+                                               so the robot is lost (fallen while a sensor stopped,
+                                               running away on an encoder that stopped counting,
+                                               blocked or held) (tipbot_fw.loop)
   (limits.max_consecutive_overruns             the stop of earlier versions: still accepted in a
                                                config file, with a note, and not used)
   filters.encoder_rate_cutoff_hz               detector only: low-pass of the differentiated encoder positions
@@ -100,6 +106,14 @@ MAX_LOST_S = 0.1
 # 150 times in that time).
 MAX_STALL_S = 0.15
 MAX_STALL_BOUNDS_S = (0.02, 0.5)
+# The saturation stop (tipbot_fw.loop): a motor at its duty limit in SATURATED_SHARE of the ticks
+# of limits.max_saturated_s. The law saturates while it catches a push or a stall (on the realistic
+# brick at most 16 % of any second's ticks in the runs that stood, 35 % in a push that felled the
+# robot); a motor held there for a whole second is a robot that no longer balances. Bounds: not shorter than a push's
+# recovery, not longer than the owner would let a robot drive blind.
+MAX_SATURATED_S = 1.0
+MAX_SATURATED_BOUNDS_S = (0.25, 5.0)
+SATURATED_SHARE = 0.9
 # The stop of earlier versions (late ticks in a row): its old bounds, for the files that still have it.
 DEPRECATED_LIMITS = {'max_consecutive_overruns': _number(1, 100, lo_open=False, integer=True)}
 
@@ -137,6 +151,7 @@ SPEC = {
     'limits.overrun_window_s': _number(OVERRUN_WINDOW_S[0], OVERRUN_WINDOW_S[1], lo_open=False),
     'limits.max_lost_s': _number(0, MAX_LOST_S),
     'limits.max_stall_s': _number(MAX_STALL_BOUNDS_S[0], MAX_STALL_BOUNDS_S[1], lo_open=False),
+    'limits.max_saturated_s': _number(MAX_SATURATED_BOUNDS_S[0], MAX_SATURATED_BOUNDS_S[1], lo_open=False),
     'filters.encoder_rate_cutoff_hz': _number(0.5, 500, lo_open=False),   # and below Nyquist: check_config_against_gains
     'filters.gyro_rate_cutoff_hz': _number(0.5, 500, lo_open=False),
     'filters.disturbance_cutoff_hz': _number(0.01, 100, lo_open=False, allow_null=True),

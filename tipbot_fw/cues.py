@@ -30,6 +30,7 @@ BALANCING_AFTER_S = 1.0
 # A stop reason's short words for the screen (any other reason: 'stopped: <reason>').
 STOP_WORDS = {
     'completed': 'DONE: ran its duration', 'fall': 'STOPPED: fell over', 'joint_limit': 'STOPPED: joint limit',
+    'saturated': 'STOPPED: motor held at its limit',
     'device_failure': 'STOPPED: sensor/motor failed', 'overruns': 'STOPPED: ticks late (overruns)',
     'low_battery': 'NOT STARTED: battery low, charge it', 'calibration': 'NOT STARTED: moved while calibrating',
     'devices': 'NOT STARTED: devices missing', 'keyboard_interrupt': 'STOPPED: Ctrl-C',

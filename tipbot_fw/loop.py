@@ -26,8 +26,8 @@ reach at the nominal period; only when that cheap test fails is the exact one, w
 since the previous read, made). That check is also what keeps the wheels' count changes within
 the core's max_count_step (the Kalman core's fixed-point range): the core does not check again.
 
-Between ticks, after the tick's writes and its overrun bookkeeping, in this order: the log's
-rows, written to the file in whole chunks (logfile.CHUNK_ROWS, on the grid of chunks: the slots
+Between ticks, after the tick's writes and its overrun bookkeeping, in this order: the
+saturation stop and the log's rows, written to the file in whole chunks (logfile.CHUNK_ROWS, on the grid of chunks: the slots
 of the file's ring of a long run's last rows; no fsync in the loop); the battery
 (about once a second: its plausibility, and whether the supervisor is still there); the side
 task (tipbot_fw.side_tasks: lights, tones, telemetry). Each runs in the first tick, from the one it
@@ -42,18 +42,29 @@ task is due at once: a drive's live plan lost the skipped periods' rows (KalmanC
 12) and its side task makes them. Until the next tick with work due, a tick pays one integer
 comparison for all of it.
 
+The saturation stop: the law saturates a motor only for a moment while it balances (a push, a
+stall caught up); a motor at its duty limit in config.SATURATED_SHARE of the ticks of the last
+limits.max_saturated_s is a robot that no longer balances, whatever the estimate says: one that
+fell while its gyro froze (the estimate still upright, the motors at full power on the floor),
+that runs away on a wheel encoder that stopped counting, or that is blocked or held. The loop
+then stops (Saturated, exit 6). The rows' saturation flags are counted once a chunk, with the
+log's chunk, from the ring in memory: no tick pays for it.
+
 Motors are not stopped here: the caller (tipbot_fw.session) stops them in its finally clause.
 """
 import collections
 import gc
 
-from tipbot_fw.config import MAX_STALL_S
+import numpy as np
+
+from tipbot_fw.config import MAX_SATURATED_S, MAX_STALL_S, SATURATED_SHARE
 from tipbot_fw.guard.heartbeat import NOT_SUPERVISED
 from tipbot_fw.guard.plausibility import GYRO_MAX_DPS, EncoderBound, check_battery
 from tipbot_fw.guard.realtime import ask_fifo
-from tipbot_fw.guard.safety import DeviceFailure, FallDetected, JointLimit, OverrunLimit, Terminated, watchdog_stop
+from tipbot_fw.guard.safety import (DeviceFailure, FallDetected, JointLimit, OverrunLimit, Saturated, Terminated,
+                                    watchdog_stop)
 from tipbot_fw.record import logfile
-from tipbot_fw.vocabulary import FLAG_BITS, SKIP_MAX, SKIP_SHIFT, WOUND_DOWN
+from tipbot_fw.vocabulary import FLAG_BITS, MOTOR_ROLES, SATURATION_BITS, SKIP_MAX, SKIP_SHIFT, WOUND_DOWN
 
 # What a tick must leave before the next release for the work between ticks (a chunk of log rows
 # is a copy, a CRC-32 and a pwrite; the battery one sysfs read, 0.3-0.45 ms on the brick), or
@@ -71,6 +82,9 @@ WIND_DOWN_S = 1.0
 
 OVERRUN = FLAG_BITS['overrun']
 FALL = FLAG_BITS['fall']
+# each motor's saturation bit, in MOTOR_ROLES order, and the flag values (of the 16) that have it
+SATURATED = [FLAG_BITS[b] for b in ('sat_r', 'sat_l', 'sat_th2', 'sat_th3')]
+_WITH_BIT = [[v for v in range(SATURATION_BITS + 1) if v & bit] for bit in SATURATED]
 
 
 def _NEVER(k):
@@ -86,6 +100,7 @@ class LoopStats(object):
         self.max_consecutive_overruns = 0
         self.skipped_periods = 0
         self.max_lost_s = 0.0         # the most time lost within one overrun window
+        self.max_saturated_share = 0.0  # the largest share of a saturation window's ticks a motor was saturated
         self.battery_reads = 0
         self.battery_v = None
         self.realtime = None
@@ -113,12 +128,14 @@ class ControlLoop(object):
     SCHED_FIFO priority to ask for during the run (0: don't); heartbeat: the supervisor's page
     (tipbot_fw.guard.heartbeat); encoder_bound: a plausibility.EncoderBound (None: only the gyro's
     bound is checked); side: a side task (tipbot_fw.side_tasks) or None, settable until run();
-    overrun_window_s, max_lost_s, max_stall_s: the overrun stop (the module's docstring);
+    overrun_window_s, max_lost_s, max_stall_s: the overrun stop; max_saturated_s: the saturation
+    stop (the module's docstring; inf: none);
     on_scheduling: called with one line saying which scheduling the run got, before the first tick.
     """
 
     def __init__(self, devices, core, clock, log, period_s, battery_v, battery_period_s=1.0,
-                 overrun_window_s=0.3, max_lost_s=0.04, max_stall_s=MAX_STALL_S, duration_s=None, realtime_priority=0, heartbeat=NOT_SUPERVISED,
+                 overrun_window_s=0.3, max_lost_s=0.04, max_stall_s=MAX_STALL_S,
+                 max_saturated_s=MAX_SATURATED_S, duration_s=None, realtime_priority=0, heartbeat=NOT_SUPERVISED,
                  encoder_bound=None, side=None, on_scheduling=None):
         self.devices = devices
         self.core = core
@@ -130,6 +147,7 @@ class ControlLoop(object):
         self.overrun_window_s = overrun_window_s
         self.max_lost_s = max_lost_s
         self.max_stall_s = max_stall_s
+        self.max_saturated_s = max_saturated_s
         self.n_ticks = None if duration_s is None else max(1, int(round(duration_s / period_s)))
         self.realtime_priority = realtime_priority
         self.heartbeat = heartbeat
@@ -326,6 +344,9 @@ class ControlLoop(object):
         self._wind_every = max(1, int(round(WIND_DOWN_S / period)))
         self._next_wind = self._wind_every
         self._min_slack = min(SLACK_S, SLACK_FRACTION * period)
+        self._sat_from = 0          # the first tick the saturation stop has not counted yet
+        self._sat_window = collections.deque()   # (ticks, rows counted, [rows saturated per motor])
+        self._sat_ticks = self.max_saturated_s / period
         return min(self._next_flush, self._next_battery, self._next_wind)
 
     def _housekeeping(self, k, release):
@@ -341,6 +362,7 @@ class ControlLoop(object):
                 log.mem[(k - 1) % log.capacity, log.rows.flags_index] += WOUND_DOWN
             self._next_wind = k - k % self._wind_every + self._wind_every
         if k >= self._next_flush and (release - now() > min_slack or k - log.flushed >= self._urgent):
+            self._watch_saturation(k)
             log.flush(k)                        # whole chunks: the file's unit
             self._next_flush = k - k % log.chunk_rows + log.chunk_rows
         battery_every = self.battery_every
@@ -348,6 +370,41 @@ class ControlLoop(object):
             self._read_battery(k)
             self._next_battery = k - k % battery_every + battery_every     # on the grid
         return min(self._next_flush, self._next_battery, self._next_wind)
+
+    def _watch_saturation(self, k):
+        """Count the saturation flags of the rows stored since the last count (those the ring
+        still holds); Saturated if a motor was at its limit in SATURATED_SHARE of the rows of
+        the last max_saturated_s (the module's docstring)."""
+        log = self.log
+        cap = log.capacity
+        start = max(self._sat_from, k - cap)
+        ticks = k - self._sat_from
+        self._sat_from = k
+        if ticks <= 0:
+            return
+        column = log.mem[:, log.rows.flags_index]
+        a, b = start % cap, k % cap
+        flags = column[a:b] if a < b else np.concatenate((column[a:], column[:b]))
+        # the flag values' low bits (one bincount), then each motor's: a few calls per chunk
+        seen = np.bincount(flags.astype(np.int64) & SATURATION_BITS, minlength=SATURATION_BITS + 1).tolist()
+        window = self._sat_window
+        window.append((ticks, k - start, [sum(seen[v] for v in values) for values in _WITH_BIT]))
+        total = sum(t for t, _, _ in window)
+        while total - window[0][0] >= self._sat_ticks:
+            total -= window.popleft()[0]
+        if total < self._sat_ticks:
+            return
+        rows = sum(n for _, n, _ in window)
+        for i in range(len(SATURATED)):
+            share = sum(c[i] for _, _, c in window) / float(rows)
+            if share > self.stats.max_saturated_share:
+                self.stats.max_saturated_share = share
+            if share >= SATURATED_SHARE:
+                raise Saturated('motor held at its limit: the {} motor at its duty limit in {:.0f} % of the ticks of the '
+                                'last {:.2f} s (limits.max_saturated_s = {} s) up to tick {}: the robot no longer '
+                                'balances (fallen while a sensor stopped, running away on an encoder that stopped '
+                                'counting, blocked or held)'.format(MOTOR_ROLES[i], 100.0 * share, total * self.period_s,
+                                                                   self.max_saturated_s, k - 1))
 
     def _read_battery(self, k):
         """The battery's reading after tick k - 1: plausible, the law rescaled when it changed;

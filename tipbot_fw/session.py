@@ -152,7 +152,7 @@ def run_session(devices, gains, config, clock, log_path=None, duration_s=None,
         run['loop'] = ControlLoop(devices, core, clock, rows, gains.ts_s, bv,
                                   battery_period_s=config['battery_period_s'],
                                   overrun_window_s=lim['overrun_window_s'], max_lost_s=lim['max_lost_s'],
-                                  max_stall_s=lim['max_stall_s'],
+                                  max_stall_s=lim['max_stall_s'], max_saturated_s=lim['max_saturated_s'],
                                   duration_s=duration_s, realtime_priority=realtime_priority,
                                   heartbeat=heartbeat, on_scheduling=say,
                                   encoder_bound=EncoderBound(config, devices.counts_per_rot, gains.ts_s))

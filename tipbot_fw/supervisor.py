@@ -101,13 +101,16 @@ def say(msg, who='supervisor'):
 
 
 def _option(argv, name):
-    """The value of ``name VALUE`` or ``name=VALUE`` in the controller's arguments, or None."""
+    """The value of ``name VALUE`` or ``name=VALUE`` in the controller's arguments, or None; the
+    last one when it is given twice, as the controller's argparse takes it (the launcher puts the
+    deployed ``--config`` first, an owner's ``./tipbot --config other.json`` after it)."""
+    value = None
     for i, a in enumerate(argv):
         if a == name and i + 1 < len(argv):
-            return argv[i + 1]
-        if a.startswith(name + '='):
-            return a[len(name) + 1:]
-    return None
+            value = argv[i + 1]
+        elif a.startswith(name + '='):
+            value = a[len(name) + 1:]
+    return value
 
 
 def motor_ports(config):

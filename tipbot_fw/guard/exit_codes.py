@@ -32,7 +32,9 @@ TABLE = (
     (EXIT_DEVICE_FAILURE, 'a device read or write failed during the run, or a reading no hardware can give (a '
                           'gyro rate beyond +-440 deg/s, an encoder jump faster than any motor turns, a battery '
                           'voltage outside what an EV3 can run on or jumping implausibly)', True),
-    (EXIT_LIMIT, 'a fall (|th1| beyond limits.th1_rad) or a joint beyond its limit: stopped in that tick', True),
+    (EXIT_LIMIT, 'a fall (|th1| beyond limits.th1_rad) or a joint beyond its limit: stopped in that tick; or a '
+                 'motor held at its saturation for limits.max_saturated_s (the robot fallen while a sensor '
+                 'stopped, running away, blocked or held)', True),
     (EXIT_OVERRUN, 'the loop fell behind: more than limits.max_lost_s lost to late ticks (periods skipped, '
                    'lateness) within limits.overrun_window_s', True),
     (EXIT_WATCHDOG, 'the controller stalled: its supervisor saw no heartbeat, stopped the motors and stopped it',

@@ -26,6 +26,12 @@ class JointLimit(SafetyStop):
     exit_code = EXIT_LIMIT
 
 
+class Saturated(SafetyStop):
+    """A motor held at its duty limit for limits.max_saturated_s: the robot no longer balances."""
+    reason = 'saturated'
+    exit_code = EXIT_LIMIT
+
+
 class DeviceFailure(SafetyStop):
     reason = 'device_failure'
     exit_code = EXIT_DEVICE_FAILURE

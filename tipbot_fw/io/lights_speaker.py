@@ -59,11 +59,12 @@ STATES = {
 }
 
 # tipbot_fw.guard.safety's stop reasons -> states; any other reason shows 'error'. An implausible
-# battery reading is a failed read (exit 5, as a sensor's). The supervisor's stops (a stalled
+# battery reading is a failed read (exit 5, as a sensor's); a motor held at its saturation is a
+# robot that fell or is lost (exit 6, as a fall). The supervisor's stops (a stalled
 # controller, 'watchdog'; one that died, 'controller_died', shown by the supervisor itself) and
 # a lost supervisor are errors: the 16 light pairs hold no distinct one for them that is not
 # 'all off', and the screen's words tell them apart.
-STOP_STATES = {'completed': 'completed', 'fall': 'fall', 'joint_limit': 'joint_limit',
+STOP_STATES = {'completed': 'completed', 'fall': 'fall', 'saturated': 'fall', 'joint_limit': 'joint_limit',
                'device_failure': 'device_failure', 'battery_implausible': 'device_failure',
                'overruns': 'overruns', 'low_battery': 'low_battery', 'calibration': 'calibration',
                'devices': 'devices', 'keyboard_interrupt': 'signal', 'sigterm': 'signal', 'signal': 'signal'}
