@@ -319,7 +319,8 @@ def test_the_integrators_stay_within_their_authority_when_the_wheels_are_held(tm
     # the integrators would reach 2 m s in 8 s; the loop keeps them within kalman.integral.limit_m_s
     # once a second (outside the tick), the log flags it and the replay does the same to the bit.
     # The law holds the wheels at their duty limit meanwhile, which the saturation stop ends after
-    # limits.max_saturated_s (tests/test_fw_loop.py): off here, to see the integrators' long hold
+    # limits.max_saturated_s (tests/test_fw_loop.py), and the wheel watch (a count that stays while
+    # its motor is driven hard) sooner: both off here, to see the integrators' long hold
     gains = committed('physical')
     hold_m = 0.3
     held = int(round(hold_m / (gains.kalman.wheel_radius_m * 2 * math.pi / 360)))
@@ -332,6 +333,7 @@ def test_the_integrators_stay_within_their_authority_when_the_wheels_are_held(tm
     dev = MemoryDevices(source=source)
     log = str(tmp_path / 'held.log')
     monkeypatch.setattr(fw_loop, 'SATURATED_SHARE', 2.0)
+    monkeypatch.setattr(fw_loop, 'STUCK_DUTY_PCT', 101)
     code, header = run_session(dev, gains, S.fw_config(battery_period_s=battery_period_s), VirtualClock(),
                                log_path=log, duration_s=8.0,
                                say=lambda m: None, cues=OwnerCues(streams=()))
@@ -354,3 +356,24 @@ def test_the_integrators_stay_within_their_authority_when_the_wheels_are_held(tm
         assert not np.array_equal(fw_replay.replay(head, rows, gains)[:, 2:], rows[:, 2:])   # and it mattered
     finally:
         KalmanCore.wind_down = saved
+
+
+def test_wheels_held_while_driven_hard_are_a_blocked_wheel_even_without_the_saturation_stop(tmp_path, monkeypatch):
+    # the same hold, the saturation stop off (a law whose integrators' anti-windup keeps a blocked
+    # or dead wheel below its limit): the wheel watch (a count that stays at every chunk's end for
+    # STUCK_S while its motor is driven at STUCK_DUTY_PCT or more) ends the run, exit 5
+    gains = committed('physical')
+    held = int(round(0.3 / (gains.kalman.wheel_radius_m * 2 * math.pi / 360)))
+    reads = [0]
+
+    def source():
+        reads[0] += 1
+        c = min(held, max(0, reads[0] - 50))
+        return (c, c, 0, 0), (0, 0)
+    monkeypatch.setattr(fw_loop, 'SATURATED_SHARE', 2.0)
+    log = str(tmp_path / 'held.log')
+    code, header = run_session(MemoryDevices(source=source), gains, S.fw_config(), VirtualClock(), log_path=log,
+                               duration_s=8.0, say=lambda m: None, cues=OwnerCues(streams=()))
+    assert code == 5 and header['stop_reason'] == 'device_failure', header.get('stop_message')
+    assert "wheel's encoder read" in header['stop_message']
+    assert header['loop']['ticks'] * gains.ts_s < 5.0     # of the 8 s asked: once the law drives the wheels hard

@@ -123,9 +123,10 @@ def test_a_sensor_that_stops_mid_run_ends_with_the_motors_stopped(sensor):
     """A sensor whose reading stops changing 2 s after the let-go, with no error to read: the
     gyro (its UART stops, the value stays) lets the robot fall while the estimate stays upright;
     the right wheel's encoder (a loose cable) makes the law drive that wheel on and on while the
-    robot rolls away upright. Neither is implausible on its own; the saturation stop
-    (tipbot_fw.loop) ends both (without it both ran the whole 12 s, the fallen robot's wheels
-    at 7.4 V). A floor at 90 degrees, where the fallen robot lies."""
+    robot rolls away upright. Neither is implausible on its own; the saturation stop ends the
+    first, the wheel watch (a count that stays while its motor is driven hard) the second
+    (tipbot_fw.loop; without them both ran the whole 12 s, the fallen robot's wheels at 7.4 V).
+    A floor at 90 degrees, where the fallen robot lies."""
     from hostsim.sim.firmware_build import build_run
     from hostsim.sim.firmware_readback import read_back
     from hostsim.sim.firmware_run import _session
@@ -155,7 +156,10 @@ def test_a_sensor_that_stops_mid_run_ends_with_the_motors_stopped(sensor):
     sensors.encoders, sensors.gyro, world.publish = stuck_encoders, stuck_gyro, on_the_floor
     code, header, _ = _session(run, None, sc.duration_s)
     r = read_back(run, code, header, None, None)
-    assert r.exit_code == 6 and r.stop_reason == "saturated", header.get("stop_message")
+    if sensor == "gyro":
+        assert r.exit_code == 6 and r.stop_reason == "saturated", header.get("stop_message")
+        assert "_wheel" in header["stop_message"]
+    else:       # the law's integrators and their anti-windup need not saturate it: the wheel watch
+        assert r.exit_code == 5 and r.stop_reason == "device_failure", header.get("stop_message")
+        assert "the right wheel's encoder read" in header["stop_message"]
     assert 1.0 < r.t_s[-1] - 2.0 < 9.0
-    wheel = "right_wheel" if sensor == "right_encoder" else "_wheel"
-    assert wheel in header["stop_message"]

@@ -48,7 +48,10 @@ limits.max_saturated_s is a robot that no longer balances, whatever the estimate
 fell while its gyro froze (the estimate still upright, the motors at full power on the floor),
 that runs away on a wheel encoder that stopped counting, or that is blocked or held. The loop
 then stops (Saturated, exit 6). The rows' saturation flags are counted once a chunk, with the
-log's chunk, from the ring in memory: no tick pays for it.
+log's chunk, from the ring in memory: no tick pays for it. With it, a wheel whose encoder keeps
+one count at every chunk's end for STUCK_S while its motor is driven hard (STUCK_DUTY_PCT) is a
+dead encoder or a blocked wheel: DeviceFailure (exit 5), sooner than the saturation stop, which
+a law with integral action and anti-windup may never reach on such a wheel.
 
 Motors are not stopped here: the caller (tipbot_fw.session) stops them in its finally clause.
 """
@@ -85,6 +88,27 @@ FALL = FLAG_BITS['fall']
 # each motor's saturation bit, in MOTOR_ROLES order, and the flag values (of the 16) that have it
 SATURATED = [FLAG_BITS[b] for b in ('sat_r', 'sat_l', 'sat_th2', 'sat_th3')]
 _WITH_BIT = [[v for v in range(SATURATION_BITS + 1) if v & bit] for bit in SATURATED]
+
+
+# A wheel encoder that stops counting while its motor is driven (a cable pulled out, the motor's
+# port dead) reads as a wheel that stands still: the law drives that wheel on and on while the
+# robot rolls away upright. A balancing robot's wheels move: a duty of STUCK_DUTY_PCT (2.4 V of
+# 8 V, six times a Large motor's friction duty) turns a free wheel several revolutions a second;
+# the same count at the end of every log chunk for STUCK_S with that duty each time is a dead
+# encoder or a blocked wheel (tipbot_fw.loop._watch_wheels: DeviceFailure, exit 5).
+STUCK_DUTY_PCT = 25
+STUCK_S = 0.75
+
+
+def _wheel_slots(log):
+    """(a view of the ring's rows, the wheels' count slots, their duty slots) in whichever core's
+    row the log holds, or None if it has no such columns."""
+    names = list(log.rows.mem_names)
+    for counts, dtype in ((('rel_r', 'rel_l'), '<i8'), (('enc_r', 'enc_l'), '<f8')):
+        if all(n in names for n in counts + ('duty_r', 'duty_l')):
+            view = np.frombuffer(log.data, dtype=dtype).reshape(log.capacity, log.row_bytes // 8)
+            return view, [names.index(n) for n in counts], [names.index(n) for n in ('duty_r', 'duty_l')]
+    return None
 
 
 def _NEVER(k):
@@ -347,6 +371,8 @@ class ControlLoop(object):
         self._sat_from = 0          # the first tick the saturation stop has not counted yet
         self._sat_window = collections.deque()   # (ticks, rows counted, [rows saturated per motor])
         self._sat_ticks = self.max_saturated_s / period
+        self._wheels = _wheel_slots(log)
+        self._wheel_seen = []       # each chunk's end: ([wheel counts], [wheel duties], tick)
         return min(self._next_flush, self._next_battery, self._next_wind)
 
     def _housekeeping(self, k, release):
@@ -382,6 +408,7 @@ class ControlLoop(object):
         self._sat_from = k
         if ticks <= 0:
             return
+        self._watch_wheels(k)
         column = log.mem[:, log.rows.flags_index]
         a, b = start % cap, k % cap
         flags = column[a:b] if a < b else np.concatenate((column[a:], column[:b]))
@@ -405,6 +432,27 @@ class ControlLoop(object):
                                 'balances (fallen while a sensor stopped, running away on an encoder that stopped '
                                 'counting, blocked or held)'.format(MOTOR_ROLES[i], 100.0 * share, total * self.period_s,
                                                                    self.max_saturated_s, k - 1))
+
+    def _watch_wheels(self, k):
+        """A wheel encoder that stopped counting while its motor was driven (the module's
+        docstring): its count at each chunk's end, the same for STUCK_S, and the wheel's duty at
+        least STUCK_DUTY_PCT each time -> DeviceFailure. A few Python operations a chunk."""
+        if self._wheels is None or k < 1:
+            return
+        view, count_at, duty_at = self._wheels
+        row = view[(k - 1) % self.log.capacity]
+        seen = self._wheel_seen
+        seen.append(([int(row[i]) for i in count_at], [int(row[i]) for i in duty_at], k))
+        while k - seen[0][2] > STUCK_S / self.period_s:
+            seen.pop(0)
+        if k - seen[0][2] < STUCK_S / self.period_s - 1:
+            return
+        for w, name in enumerate(('right', 'left')):
+            if all(c[w] == seen[0][0][w] and abs(d[w]) >= STUCK_DUTY_PCT for c, d, _ in seen):
+                raise DeviceFailure('the {} wheel\'s encoder read {} counts for {:.2f} s up to tick {} while its motor '
+                                    'was driven at {} % duty or more: its cable is loose or the wheel is blocked'.format(
+                                        name, seen[0][0][w], (k - seen[0][2]) * self.period_s, k - 1,
+                                        STUCK_DUTY_PCT))
 
     def _read_battery(self, k):
         """The battery's reading after tick k - 1: plausible, the law rescaled when it changed;
