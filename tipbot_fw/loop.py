@@ -37,9 +37,11 @@ rows when the ring in memory is about to be overwritten, the battery when it is 
 period late. The side task waits at most SIDE_WAIT_S for slack, then runs anyway: a cue (let go,
 balancing, a stop's tone) must reach the owner within a fraction of a human reaction time, and
 one light write, note or datagram (0.1-0.45 ms) makes a tick at most slightly late, which the
-overrun stop (time lost in a window) rides out. After a tick that skipped whole periods the side
-task is due at once: a drive's live plan lost the skipped periods' rows (KalmanCore.skip keeps
-12) and its side task makes them. Until the next tick with work due, a tick pays one integer
+overrun stop (time lost in a window) rides out. After a tick that skipped whole periods and
+left a drive's live plan with no more than the 12 rows a skip keeps (KalmanCore.skip,
+live_short), the side task is due at once: it makes the rows the skip took. (Not after every
+skip: a side task called off its own rhythm after each of a realistic brick's late wake-ups
+moved a course's corrections, and the square ended 10.7 cm from its start instead of 0.9.) Until the next tick with work due, a tick pays one integer
 comparison for all of it.
 
 The saturation stop: the law saturates a motor only for a moment while it balances (a push, a
@@ -307,8 +309,11 @@ class ControlLoop(object):
                 late = now() - release
                 if late > 0.0:
                     release, consecutive = self._late_tick(k, late, release, consecutive)
-                    if late >= period:  # periods skipped: a live plan lost rows (the core's skip),
-                        side_due = due = k      # which its side task makes: due at once
+                    if late >= period and side_due > k and core.live_short():
+                        # periods skipped took a live plan's rows down to the few a skip keeps
+                        # (KalmanCore.skip): its side task makes more, due at once (never later
+                        # than it was: an overdue side task keeps its wait's start)
+                        side_due = due = k
                 else:
                     consecutive = 0
                 if k >= due:        # work between ticks: one comparison a tick until some is due

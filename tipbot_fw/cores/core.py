@@ -58,6 +58,11 @@ class Core(object):
         through them, outside the tick (a replay calls it from the log's flags)."""
         raise NotImplementedError
 
+    def live_short(self):
+        """Whether a live drive plan's rows ran down to the few a stall's skip keeps (its maker,
+        a side task, is then due at once: tipbot_fw.loop). A core without live plans: never."""
+        return False
+
     def wind_down(self):
         """Once a second outside the ticks: keep the law's integrators within their limit.
         -> True if it changed them (the log's flags record it for the replay)."""

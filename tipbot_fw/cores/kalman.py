@@ -520,6 +520,10 @@ class KalmanCore(Core):
         self.dot = self.M.dot
         self.v_in = self.v
 
+    def live_short(self):
+        """A live plan down to the rows a stall's skip keeps (or fewer): its maker is due."""
+        return self.live is not None and len(self.live) <= LIVE_KEEP_ROWS
+
     def set_live(self, rows):
         """Drive from a live plan: `rows` (a collections.deque of 48-byte rows, made by
         tipbot_fw.drive.pathfollow for a course, tipbot_fw.drive.remote for a remote) that the loop's slack
