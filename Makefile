@@ -53,7 +53,7 @@ TELEMETRY_EVERY ?= 20
 MEM_SECONDS ?= 60
 
 .DEFAULT_GOAL := help
-.PHONY: help venv test test-fast gains paper-check sim replay bench brick stage deploy run drive logs watch sim-brick \
+.PHONY: help venv test test-fast gains paper-check sim replay bench bench-steps brick stage deploy run drive logs watch sim-brick \
         sim-brick-stop clean distclean
 
 help:
@@ -62,11 +62,13 @@ help:
 	@echo "  test         run the whole test suite, as CI does (pytest tests/; PYTEST_ARGS=...)"
 	@echo "  test-fast    the suite without the tests marked slow (real processes, whole studies)"
 	@echo "  sim          paper scenarios + robustness, firmware in the loop -> out/sim/report.md"
+	@echo "               (and its tables into docs/results.md, docs/realistic-brick.md: docs/data/sim.json)"
 	@echo "  gains        regenerate gains/*.json; unchanged within tolerance: left as they are"
 	@echo "               (TS=0.010 VARIANT=paper|physical PARAMS=file: another TS/PARAMS gets its own file)"
 	@echo "  paper-check  compare the paper variant's gains with the paper's Appendix C"
 	@echo "  replay       replay a robot log on the host (LOG=file; GAINS=other.json)"
 	@echo "  bench        simulation real-time factor; instructions per tick and memory on the virtual brick"
+	@echo "               (and its output and tables into docs/benchmarks.md: docs/data/bench.json)"
 	@echo "  brick        set up the virtual brick for 'make bench' (root, 5-10 min)"
 	@echo "  stage        lay out what deploy copies, in $(STAGE) (DEPLOY_VARIANT=, CONFIG=)"
 	@echo "  deploy       copy what changed to the brick over ssh (HOST=robot@ev3dev.local; CONFIG=file,"
@@ -121,7 +123,15 @@ replay: $(if $(LOG),venv)
 # Instructions per control tick of tipbot_fw.bench on the virtual brick (an ARM926 under QEMU
 # with Debian armel's Python 3.11 + numpy 1.24: an approximation of the brick's Python 3.5 +
 # numpy 1.12, see docs/benchmarks.md). Without the brick it says how to make one.
+# make bench tees what its steps print to out/bench/output.txt; docs/benchmarks.md's generated
+# blocks are written from it (python -m hostsim docs --bench) when every step succeeded
 bench: venv
+	@mkdir -p out/bench
+	@{ $(MAKE) --no-print-directory bench-steps 2>&1; echo $$? >out/bench/status; } | tee out/bench/output.txt; \
+	  exit $$(cat out/bench/status)
+	@$(VPY) -m hostsim docs --bench out/bench/output.txt
+
+bench-steps: venv
 	$(VPY) -m hostsim bench-sim
 	@echo "== the control tick as it runs supervised: heartbeat, plausibility checks, log chunks to a file"
 	$(VPY) tools/tick-cost --ticks $(TICKS) -- python3 -m tipbot_fw.bench

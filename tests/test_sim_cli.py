@@ -77,9 +77,14 @@ def test_unknown_verb(capsys):
 @pytest.mark.slow
 def test_sim_writes_the_report(tmp_path, capsys):
     out = tmp_path / "sim"
+    sim_data = os.path.join(REPO, "docs", "data", "sim.json")
+    with open(sim_data, "rb") as f:
+        before = f.read()
     code = main(["sim", "--out", str(out), "--scenarios", "section7", "--no-robustness", "--device", "memory",
                  "--drive-scenarios", "drive_straight"])
     assert code == 0
+    with open(sim_data, "rb") as f:
+        assert f.read() == before           # a partial study leaves the docs pages' figures alone
     report = (out / "report.md").read_text()
     assert "Where the paper's claims cannot hold" in report
     # the course: its tracking row (true path against the commanded one) and its plan view
@@ -107,6 +112,20 @@ def test_pip_install_puts_the_verbs_on_path_as_tipbot_host(capsys):
     module, func = entry["console_scripts"][0].split(" = ")[1].split(":")
     assert getattr(importlib.import_module(module), func)(["--help"]) == 0
     assert "watch" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("argv, docs", [
+    ([], True), (["--jobs", "1"], True), (["--no-docs"], False),
+    (["--scenarios", "section7"], False), (["--no-robustness"], False), (["--mc-runs", "5"], False),
+    (["--host-estimator", "kalman"], False), (["--drive-scenarios"], False)])
+def test_only_the_whole_default_study_writes_the_docs_pages(tmp_path, monkeypatch, argv, docs):
+    """make sim writes its generated blocks (hostsim.studies.sim_docs) only for the study they
+    describe: where it writes the report and with how many workers do not matter."""
+    from hostsim.studies import sim_study
+    seen = {}
+    monkeypatch.setattr(sim_study, "_study", lambda args, final: seen.setdefault("docs", args.docs) and 0)
+    sim_study.main(argv + ["--out", str(tmp_path / "sim")])
+    assert seen["docs"] is docs
 
 
 def test_an_interrupted_sim_says_so_in_one_line_and_keeps_the_previous_report(tmp_path, capsys, monkeypatch):
