@@ -156,7 +156,14 @@ def test_long_jobs_say_how_far_they_are_while_they_run():
     _time.sleep(0.2)
     bar.close()
     lines = stream.getvalue().splitlines()
-    assert lines and lines[0].startswith("Monte Carlo: 1/4 done, ") and "s left" in lines[0]
+    assert lines[0] == "Monte Carlo: 4 to do"           # at once: the phase's start is no silence
+    assert lines[1].startswith("Monte Carlo: 1/4 done, ") and "s left" in lines[1]
+    assert "done in" not in lines[-1]                   # not all done: no closing line
+    stream = io.StringIO()
+    bar = Progress(2, "margins", every_s=60, stream=stream)
+    bar.update(2)
+    bar.close()
+    assert stream.getvalue().splitlines() == ["margins: 2 to do", "margins: 2/2 done in 0 s"]
 
 
 def test_tipbot_host_calls_itself_so(monkeypatch, capsys):

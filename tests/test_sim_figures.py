@@ -160,3 +160,15 @@ def test_summary_columns_carry_units_and_split_the_estimation_error_by_unit():
     assert m["final_est_error_by_unit"] == {"m": 0.002, "rad": 0.03, "m/s": 0.4, "rad/s": 3.0}
     row = runner.summary_rows({"runs": {"linear/optimal": m}})[0]
     assert row[-4:] == ["2.0e-03", "3.0e-02", "4.0e-01", "3.0e+00"]
+
+
+def test_margins_are_labelled_to_three_digits_in_rows_of_five_panels(figures):
+    from hostsim.studies.margins import MARGINS
+    rows = [{"gains": "physical", "effect": m.key, "sign": s, "margin": 32.8125, "at_least": False}
+            for m in MARGINS for s in m.signs]
+    plots.margins_figure({"margins": rows, "_meta": {"duration_s": 30}}, "unused.png", MARGINS)
+    fig = figures[-1]
+    shown = [a for a in fig.axes if a.get_visible()]
+    assert len(shown) == len(MARGINS) and len({round(a.get_position().y0, 3) for a in shown}) == -(-len(MARGINS) // 5)
+    labels = {t.get_text() for a in shown for t in a.texts}
+    assert labels == {"32.8"}

@@ -400,8 +400,12 @@ def margins_figure(res, path, margins):
     each gains file balances with (each sign where there are two; a triangle: at least that, the
     search's end), the realistic brick's dashed."""
     labels = sorted({r["gains"] for r in res["margins"]})
-    fig, axes = plt.subplots(1, len(margins), figsize=(2.4 * len(margins), 3.4))
-    for ax, m in zip(axes, margins):
+    ncols = min(5, len(margins))             # rows of five panels: readable at the report's width
+    nrows = -(-len(margins) // ncols)
+    fig, axes = plt.subplots(nrows, ncols, figsize=(2.4 * ncols, 3.0 * nrows + 0.6), squeeze=False)
+    for ax in axes.flat[len(margins):]:
+        ax.set_visible(False)
+    for ax, m in zip(axes.flat, margins):
         names, values, beyond = [], [], []
         for label in labels:
             for r in sorted((r for r in res["margins"] if r["gains"] == label and r["effect"] == m.key),
@@ -412,7 +416,8 @@ def margins_figure(res, path, margins):
         x = np.arange(len(values))
         ax.bar(x, values, color=["C%d" % labels.index(n.split(" ")[0]) for n in names])
         for xi, v, b in zip(x, values, beyond):
-            ax.annotate("%g" % round(v, 4), (xi, v), ha="center", va="bottom", fontsize=6)
+            # three significant digits, as the table: a bisection's points (32.8125) claim more than its tolerance
+            ax.annotate("%.3g" % v, (xi, v), ha="center", va="bottom", fontsize=6)
             if b:
                 ax.plot(xi, v, marker="^", color="k", markersize=5)
         if m.realistic_value is not None:
@@ -426,7 +431,7 @@ def margins_figure(res, path, margins):
     fig.suptitle("Largest value of each effect alone at which the robot still balances %g s "
                  "(bars; triangle: at least that, the search's upper end; dashed: the realistic brick)"
                  % res["_meta"]["duration_s"], fontsize=9)
-    fig.tight_layout(rect=(0, 0, 1, 0.92))
+    fig.tight_layout(rect=(0, 0, 1, 1 - 0.25 / (3.0 * nrows + 0.6)))
     return _write(fig, path)
 
 
