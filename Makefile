@@ -113,8 +113,11 @@ gains: venv
 paper-check: venv
 	$(VPY) -m hostsim paper-check
 
+# Ctrl-C on a terminal reaches make as well as the study: the study's one line is all that is
+# printed and make ends on the signal (status 130); a SIGINT to the study alone fails as usual
 sim: venv
-	$(VPY) -m hostsim sim $(SIM_ARGS)
+	@trap 'interrupted=1' INT; $(VPY) -m hostsim sim $(SIM_ARGS); rc=$$?; \
+	  if [ $$rc -eq 130 ] && [ -n "$$interrupted" ]; then exit 0; fi; exit $$rc
 
 replay: $(if $(LOG),venv)
 	@test -n "$(LOG)" || { echo "usage: make replay LOG=path/to/run.log [GAINS=other.json]" >&2; exit 2; }

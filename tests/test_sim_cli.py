@@ -181,3 +181,54 @@ def test_tipbot_host_calls_itself_so(monkeypatch, capsys):
     monkeypatch.setattr(sys, "argv", ["-m"])
     assert main(["fly"]) == 2
     assert capsys.readouterr().err.startswith("python -m hostsim: unknown verb 'fly'")
+
+
+def _study_stand_in(tmp_path):
+    """A stand-in for the study behind make sim: says it started, then, on SIGINT, its one line."""
+    fake = tmp_path / "python"
+    fake.write_text("#!/usr/bin/env python3\nimport signal, sys, time\n"
+                    "def stop(*a):\n    print('sim: interrupted: nothing new written', file=sys.stderr)\n"
+                    "    sys.exit(130)\n"
+                    "signal.signal(signal.SIGINT, stop)\nprint('started', flush=True)\ntime.sleep(30)\n")
+    fake.chmod(0o755)
+    return fake
+
+
+@pytest.mark.skipif(not hasattr(os, "fork"), reason="a terminal: pty")
+def test_ctrl_c_on_make_sim_is_one_line_and_status_130(tmp_path):
+    """Ctrl-C on a terminal reaches make and the study: one line (not make's '*** [sim] Error
+    130' after it), make ends on the signal; a SIGINT to the study alone is a failure."""
+    import pty
+    import select
+    import signal as sig
+    import subprocess
+    import time
+    fake = _study_stand_in(tmp_path)
+    pid, fd = pty.fork()
+    if pid == 0:
+        os.chdir(REPO)
+        os.execvp("make", ["make", "-s", "sim", "VPY=%s" % fake])
+    out, sent, t0 = b"", False, time.monotonic()
+    while time.monotonic() - t0 < 20:
+        if select.select([fd], [], [], 0.1)[0]:
+            try:
+                data = os.read(fd, 4096)
+            except OSError:
+                break
+            if not data:
+                break
+            out += data
+        if not sent and b"started" in out:
+            os.write(fd, b"\x03")
+            sent = True
+    _, status = os.waitpid(pid, 0)
+    text = out.decode(errors="replace").replace("^C", "")
+    assert sent and os.WIFSIGNALED(status) and os.WTERMSIG(status) == sig.SIGINT     # the shell says 130
+    assert [l for l in text.splitlines()[1:] if l.strip()] == ["sim: interrupted: nothing new written"], text
+    p = subprocess.Popen(["make", "-s", "sim", "VPY=%s" % fake], cwd=REPO, stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE, universal_newlines=True, start_new_session=True)
+    assert p.stdout.readline() == "started\n"
+    child = next(int(c) for c in subprocess.check_output(["pgrep", "-P", str(p.pid)]).split())
+    grandchildren = subprocess.run(["pgrep", "-P", str(child)], stdout=subprocess.PIPE).stdout.split()
+    os.kill(int(grandchildren[0]) if grandchildren else child, sig.SIGINT)      # the study alone
+    assert p.wait(timeout=20) == 2 and "Error 130" in p.stderr.read()
