@@ -111,7 +111,8 @@ def refresh(source, payload, date=None):
     data = dict(payload, command=SOURCES[source][0], date=date or datetime.date.today().isoformat())
     path = data_path(source)
     os.makedirs(os.path.dirname(path), exist_ok=True)
-    _write_atomically(path, json.dumps(data, indent=1, sort_keys=True) + "\n")
+    # the payload's own order (a table's rows follow it), not sorted keys
+    _write_atomically(path, json.dumps(data, indent=1) + "\n")
     return ["wrote %s" % SOURCES[source][1]] + write_pages(source, load_data(source))
 
 
@@ -158,12 +159,20 @@ def main(argv=None):
                     "data files under docs/data/ render; exit status 1 if one differs")
     ap.add_argument("--bench", metavar="FILE", help="first save make bench's output (FILE: what its steps printed) "
                     "as docs/data/bench.json (make bench does)")
+    ap.add_argument("--sim", metavar="DIR", help="first save what DIR (the out/sim of a whole default make sim) "
+                    "holds as docs/data/sim.json, dated by its report.md (after a block was added: no study rerun)")
     args = ap.parse_args(argv)
     if args.bench:
         from hostsim.studies import bench_docs
         with open(args.bench, encoding="utf-8") as f:
             for line in refresh("bench", bench_docs.payload(f.read())):
                 print(line)
+        return 0
+    if args.sim:
+        from hostsim.studies import sim_docs
+        payload, date = sim_docs.payload_from_dir(args.sim)
+        for line in refresh("sim", payload, date=date):
+            print(line)
         return 0
     if args.check:
         found = problems()

@@ -11,7 +11,8 @@ RUN_KEYS = ("upright", "stop_reason", "completed", "duration_s", "peak_abs_th_ra
             "final_est_error_by_unit", "rms_u_v", "ideal_rms_u_v", "rms_th1_after_transient_rad",
             "oscillation_above_1hz", "tracking", "joint_offset_rad", "equilibrium_lean_rad", "lean_from_vertical_rad")
 DOC_KEYS = ("scenario", "description", "gains", "plant_variant", "duration_s")
-LINES = ("th1", "th2", "th3", "wheel_speed")          # the spectral lines the blocks quote
+LINES = ("th1", "th2", "th3", "wheel_speed", "u_th2", "u_th3")   # the spectral lines the blocks quote
+MODES = ("linear", "nonlinear", "firmware")           # the runs' order in a table, as make sim runs them
 DROP = ("trials", "wall_s", "draw")                   # bisection trails, timings, Monte Carlo draws
 
 
@@ -26,9 +27,14 @@ def _round(v):
     return v
 
 
+def _run_order(label):
+    mode, controller = label.split("/")
+    return (MODES.index(mode.split("-")[0]), controller != "optimal", label)
+
+
 def _doc(doc):
     runs = {}
-    for label, m in doc["runs"].items():
+    for label, m in sorted(doc["runs"].items(), key=lambda kv: _run_order(kv[0])):
         r = {k: m.get(k) for k in RUN_KEYS}
         osc = m.get("oscillation_above_1hz") or {}
         r["oscillation_above_1hz"] = {k: {"amplitude": osc[k]["amplitude"], "hz": osc[k]["hz"]}
@@ -53,6 +59,28 @@ def payload(docs, load_docs, drive_docs, roa, mc, mc_brick, margins):
                                 "_meta": {k: margins["_meta"][k] for k in ("duration_s", "coarse", "seeds",
                                                                            "overrun_limit_lifted")}},
     })
+
+
+def payload_from_dir(out):
+    """(payload, date) from what a whole default make sim left in out (its metrics.json and
+    robustness/*.json), dated by its report.md: a new block without rerunning the study."""
+    import datetime
+    import json
+    import os
+    import re
+    from hostsim.studies import sim_study
+
+    def read(*parts):
+        with open(os.path.join(out, *parts), encoding="utf-8") as f:
+            return json.load(f)
+    scenarios = lambda names: [read(n, "metrics.json") for n in names]
+    rob = lambda name: read("robustness", name + ".json")
+    with open(os.path.join(out, "report.md"), encoding="utf-8") as f:
+        date = re.search(r"\bon (\d{4}-\d{2}-\d{2})\b", f.read()).group(1)
+    datetime.date.fromisoformat(date)
+    return payload(scenarios(sim_study.SCENARIOS), scenarios(sim_study.LOAD_SCENARIOS),
+                   scenarios(sim_study.DRIVE_SCENARIOS), rob("roa"), rob("montecarlo"), rob("montecarlo_brick"),
+                   rob("margins")), date
 
 
 def _scenario(data, name):
@@ -95,6 +123,7 @@ def firmware_section8(data):
         ("distance from the origin at the end", lambda m: "%.1f mm" % (1000 * m["final_abs_d_m"])),
         ("strongest line above 1 Hz: links", lambda m: _line(m, ("th1", "th2", "th3"), "mrad", 1000, "%.1f")),
         ("strongest line above 1 Hz: wheel speed", lambda m: _line(m, ("wheel_speed",), "mm/s", 1000, "%.1f")),
+        ("strongest line above 1 Hz: joint inputs", lambda m: _line(m, ("u_th2", "u_th3"), "V", 1, "%.3f")),
     ]
     out = ["| firmware in the loop, Section 8 | " + " | ".join(
         "`%s` gains, `%s` plant" % (d["gains"].replace(".json", ""), d["plant_variant"]) for d in docs) + " |",
