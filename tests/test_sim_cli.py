@@ -80,8 +80,9 @@ def test_sim_writes_the_report(tmp_path, capsys):
     sim_data = os.path.join(REPO, "docs", "data", "sim.json")
     with open(sim_data, "rb") as f:
         before = f.read()
+    # (without the five payload and slope scenarios, which ran here unasked: 39 s, now 15 s)
     code = main(["sim", "--out", str(out), "--scenarios", "section7", "--no-robustness", "--device", "memory",
-                 "--drive-scenarios", "drive_straight"])
+                 "--drive-scenarios", "drive_straight", "--load-scenarios"])
     assert code == 0
     with open(sim_data, "rb") as f:
         assert f.read() == before           # a partial study leaves the docs pages' figures alone
@@ -222,9 +223,10 @@ def test_ctrl_c_on_make_sim_is_one_line_and_status_130(tmp_path):
             os.write(fd, b"\x03")
             sent = True
     _, status = os.waitpid(pid, 0)
-    text = out.decode(errors="replace").replace("^C", "")
+    # what the terminal shows besides the stand-in's 'started' and the echoed ^C (their order varies under load)
+    text = out.decode(errors="replace").replace("^C", "").replace("started", "")
     assert sent and os.WIFSIGNALED(status) and os.WTERMSIG(status) == sig.SIGINT     # the shell says 130
-    assert [l for l in text.splitlines()[1:] if l.strip()] == ["sim: interrupted: nothing new written"], text
+    assert [l for l in text.splitlines() if l.strip()] == ["sim: interrupted: nothing new written"], repr(text)
     p = subprocess.Popen(["make", "-s", "sim", "VPY=%s" % fake], cwd=REPO, stdout=subprocess.PIPE,
                          stderr=subprocess.PIPE, universal_newlines=True, start_new_session=True)
     assert p.stdout.readline() == "started\n"
