@@ -13,7 +13,9 @@ what its blocks show in a small data file under docs/data/ (``refresh``), then r
 block of its own FROM THAT FILE (never from its results in memory: the page and the check take
 the same path) and replaces the block's lines in its page; the prose around a block is never
 touched. ``python -m hostsim docs`` renders every block again from the committed data files
-(after a change to a renderer); ``--check`` only compares, as tests/test_docs.py does.
+(after a change to a renderer); ``--check`` only compares, as tests/test_docs.py does;
+``python -m hostsim sim --docs-from-saved`` makes docs/data/sim.json again from the last whole
+study in out/sim (after a block was added), without running it.
 
 Each source's module (SOURCES) defines ``BLOCKS = {name: (page, render)}``, ``render(data) ->
 markdown`` of the data file's contents (a dict with "command" and "date").
@@ -159,20 +161,12 @@ def main(argv=None):
                     "data files under docs/data/ render; exit status 1 if one differs")
     ap.add_argument("--bench", metavar="FILE", help="first save make bench's output (FILE: what its steps printed) "
                     "as docs/data/bench.json (make bench does)")
-    ap.add_argument("--sim", metavar="DIR", help="first save what DIR (the out/sim of a whole default make sim) "
-                    "holds as docs/data/sim.json, dated by its report.md (after a block was added: no study rerun)")
     args = ap.parse_args(argv)
     if args.bench:
         from hostsim.studies import bench_docs
         with open(args.bench, encoding="utf-8") as f:
             for line in refresh("bench", bench_docs.payload(f.read())):
                 print(line)
-        return 0
-    if args.sim:
-        from hostsim.studies import sim_docs
-        payload, date = sim_docs.payload_from_dir(args.sim)
-        for line in refresh("sim", payload, date=date):
-            print(line)
         return 0
     if args.check:
         found = problems()

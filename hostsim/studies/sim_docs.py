@@ -61,25 +61,24 @@ def payload(docs, load_docs, drive_docs, roa, mc, mc_brick, margins):
     })
 
 
-def payload_from_dir(out):
-    """(payload, date) from what a whole default make sim left in out (its metrics.json and
-    robustness/*.json), dated by its report.md: a new block without rerunning the study."""
+def payload_from_dir(out, scenarios, load, drive):
+    """(payload, date) from what a whole default make sim left in out (the metrics.json of its
+    scenarios, load and drive scenarios by name, robustness/*.json), dated by its report.md: a
+    new block without rerunning the study (python -m hostsim sim --docs-from-saved)."""
     import datetime
     import json
     import os
     import re
-    from hostsim.studies import sim_study
 
     def read(*parts):
         with open(os.path.join(out, *parts), encoding="utf-8") as f:
             return json.load(f)
-    scenarios = lambda names: [read(n, "metrics.json") for n in names]
+    docs = lambda names: [read(n, "metrics.json") for n in names]
     rob = lambda name: read("robustness", name + ".json")
     with open(os.path.join(out, "report.md"), encoding="utf-8") as f:
         date = re.search(r"\bon (\d{4}-\d{2}-\d{2})\b", f.read()).group(1)
     datetime.date.fromisoformat(date)
-    return payload(scenarios(sim_study.SCENARIOS), scenarios(sim_study.LOAD_SCENARIOS),
-                   scenarios(sim_study.DRIVE_SCENARIOS), rob("roa"), rob("montecarlo"), rob("montecarlo_brick"),
+    return payload(docs(scenarios), docs(load), docs(drive), rob("roa"), rob("montecarlo"), rob("montecarlo_brick"),
                    rob("margins")), date
 
 

@@ -90,7 +90,16 @@ def main(argv=None):
                          "runs with it (make sim SIM_ARGS='--host-estimator kalman')")
     ap.add_argument("--no-docs", action="store_true", help="leave the docs pages' generated blocks as they are "
                     "(only the whole default study writes them, with docs/data/sim.json)")
+    ap.add_argument("--docs-from-saved", action="store_true", help="run nothing: write docs/data/sim.json and the "
+                    "docs pages' generated blocks from the whole default study saved in --out (after a block was added)")
     args = ap.parse_args(argv)
+    if args.docs_from_saved:
+        from hostsim.studies import docblocks
+        from hostsim.studies import sim_docs
+        payload, date = sim_docs.payload_from_dir(args.out, SCENARIOS, LOAD_SCENARIOS, DRIVE_SCENARIOS)
+        for line in docblocks.refresh("sim", payload, date=date):
+            print(line)
+        return 0
     # the docs pages show the whole default study: a partial or different one leaves them alone
     args.docs = not args.no_docs and all(getattr(args, k) == ap.get_default(k) for k in DOCS_DEFAULTS)
     final = args.out
