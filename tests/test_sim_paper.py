@@ -167,6 +167,7 @@ def test_the_reference_governor_keeps_section7_within_the_motors():
     assert gov.x_e[0] > 0.1 and np.any(gov.u_e != 0)
 
 
+@pytest.mark.slow      # three runs of 50 s, the whole scenario (make test-fast stays under 90 s)
 def test_the_host_modes_run_the_firmwares_default_estimator():
     # linear and nonlinear with the Kalman filter of the gains' kalman block (in floats, ideal
     # measurement): they balance Section 8 as the firmware does, their estimate converges, and
