@@ -107,15 +107,18 @@ def write_pages(source, data):
     return said
 
 
-def refresh(source, payload, date=None):
+def refresh(source, payload, date=None, say=print):
     """Save payload (JSON-ready) with the command and date as source's data file, then write the
-    blocks from that file; -> lines to tell the user."""
+    blocks from that file; each line for the user to say(); -> the lines."""
     data = dict(payload, command=SOURCES[source][0], date=date or datetime.date.today().isoformat())
     path = data_path(source)
     os.makedirs(os.path.dirname(path), exist_ok=True)
     # the payload's own order (a table's rows follow it), not sorted keys
     _write_atomically(path, json.dumps(data, indent=1) + "\n")
-    return ["wrote %s" % SOURCES[source][1]] + write_pages(source, load_data(source))
+    lines = ["wrote %s" % SOURCES[source][1]] + write_pages(source, load_data(source))
+    for line in lines:
+        say(line)
+    return lines
 
 
 def pages():
@@ -165,8 +168,7 @@ def main(argv=None):
     if args.bench:
         from hostsim.studies import bench_docs
         with open(args.bench, encoding="utf-8") as f:
-            for line in refresh("bench", bench_docs.payload(f.read())):
-                print(line)
+            refresh("bench", bench_docs.payload(f.read()))
         return 0
     if args.check:
         found = problems()

@@ -13,7 +13,7 @@ RUN_KEYS = ("upright", "stop_reason", "completed", "duration_s", "peak_abs_th_ra
 DOC_KEYS = ("scenario", "description", "gains", "plant_variant", "duration_s")
 LINES = ("th1", "th2", "th3", "wheel_speed", "u_th2", "u_th3")   # the spectral lines the blocks quote
 MODES = ("linear", "nonlinear", "firmware")           # the runs' order in a table, as make sim runs them
-DROP = ("trials", "wall_s", "draw")                   # bisection trails, timings, Monte Carlo draws
+DROP = ("trials", "wall_s", "mean_wall_s", "runs_per_s", "jobs", "draw")   # bisection trails, timings, draws
 
 
 def _round(v):

@@ -97,8 +97,7 @@ def main(argv=None):
         from hostsim.studies import docblocks
         from hostsim.studies import sim_docs
         payload, date = sim_docs.payload_from_dir(args.out, SCENARIOS, LOAD_SCENARIOS, DRIVE_SCENARIOS)
-        for line in docblocks.refresh("sim", payload, date=date):
-            print(line)
+        docblocks.refresh("sim", payload, date=date)
         return 0
     # the docs pages show the whole default study: a partial or different one leaves them alone
     args.docs = not args.no_docs and all(getattr(args, k) == ap.get_default(k) for k in DOCS_DEFAULTS)
@@ -189,9 +188,8 @@ def _study(args, final):
     if args.docs:
         from hostsim.studies import docblocks
         from hostsim.studies import sim_docs
-        for line in docblocks.refresh("sim", sim_docs.payload(docs, load_docs, drive_docs, roa_res, mc_res, mc_brick,
-                                                               margins_res)):
-            say(line)
+        docblocks.refresh("sim", sim_docs.payload(docs, load_docs, drive_docs, roa_res, mc_res, mc_brick, margins_res),
+                          say=say)
     else:
         say("the docs pages' generated blocks left as they are (%s)" % (
             "--no-docs" if args.no_docs else "not the whole default study"))
