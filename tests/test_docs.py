@@ -197,3 +197,21 @@ def test_make_sims_saved_output_gives_the_same_data_file(tmp_path):
                                               sim_study.DRIVE_SCENARIOS)
     assert date == data['date']
     assert json.dumps(payload) == json.dumps({k: v for k, v in data.items() if k not in ('command', 'date')})
+
+
+def test_the_tally_page_groups_a_faults_kinds_the_tool_prints_alone():
+    from hostsim.studies import tally_docs
+    data = {"rows": {"fault: SIGKILL controller": [3, 3, 3], "fault: SIGSTOP controller": [3, 3, 2],
+                     "fault: SIGTERM to the controller": [3, 3, 3], "fault: signal 34 (real-time)": [3, 3, 3],
+                     "log faults": [5, 5, 5]},
+            "times_s": {"SIGKILL controller": [0.003, 0.004], "SIGTERM to the controller": [0.0001, 0.0004],
+                        "signal 34 (real-time)": [0.0002, 0.004]},
+            "failures": ["fault: SIGSTOP controller: a motor left running"], "repeat": 2}
+    page = tally_docs.tally(data).splitlines()
+    assert page[2] == "| %s (2 kinds) | 6 | 6 | 5 |" % tally_docs.PROCESS
+    assert page[3] == "| %s (2 kinds) | 6 | 6 | 6 |" % tally_docs.SIGNALS
+    assert page[5] == "| **all** | **17** | **17** | **16** |"
+    assert page[-1] == "- fault: SIGSTOP controller: a motor left running"
+    assert "| any termination signal (2 kinds) | 4 | 0.1 ms | 0.3 ms | 4.0 ms |" in tally_docs.stop_times(data)
+    printed = tally_docs.tables(data)
+    assert "| fault: SIGSTOP controller | 3 | 3 | 2 |" in printed and "| signal 34 (real-time) | 2 |" in printed
