@@ -17,11 +17,12 @@ DROP = ("trials", "wall_s", "mean_wall_s", "runs_per_s", "jobs", "draw")   # bis
 
 
 def _round(v):
-    """Figures to 6 significant digits (every table prints fewer), containers walked."""
+    """Figures to 6 significant digits (every table prints fewer), containers walked, a dict's
+    keys sorted: the same file whether the study's results come from memory or from its files."""
     if isinstance(v, float):
         return float("%.6g" % v)
     if isinstance(v, dict):
-        return {k: _round(x) for k, x in v.items() if k not in DROP}
+        return {k: _round(v[k]) for k in sorted(v) if k not in DROP}
     if isinstance(v, (list, tuple)):
         return [_round(x) for x in v]
     return v
@@ -39,8 +40,8 @@ def _doc(doc):
         osc = m.get("oscillation_above_1hz") or {}
         r["oscillation_above_1hz"] = {k: {"amplitude": osc[k]["amplitude"], "hz": osc[k]["hz"]}
                                       for k in LINES if osc.get(k)}
-        runs[label] = r
-    return dict({k: doc[k] for k in DOC_KEYS}, runs=runs)
+        runs[label] = _round(r)
+    return dict(_round({k: doc[k] for k in DOC_KEYS}), runs=runs)      # the runs in their table order
 
 
 def _mc(mc):
@@ -50,15 +51,15 @@ def _mc(mc):
 def payload(docs, load_docs, drive_docs, roa, mc, mc_brick, margins):
     """What the blocks show, JSON-ready: the scenario metrics documents (the metrics RUN_KEYS),
     the region of attraction's rows, the Monte Carlos' summaries, the margins and ablation."""
-    return _round({
+    return {
         "scenarios": [_doc(d) for d in docs], "load": [_doc(d) for d in load_docs],
         "drive": [_doc(d) for d in drive_docs],
-        "roa": roa and {k: roa[k] for k in ("rows", "tol_rad", "duration_s", "plant_variant")},
-        "montecarlo": _mc(mc), "montecarlo_brick": _mc(mc_brick),
-        "margins": margins and {"margins": margins["margins"], "ablation": margins.get("ablation", []),
-                                "_meta": {k: margins["_meta"][k] for k in ("duration_s", "coarse", "seeds",
-                                                                           "overrun_limit_lifted")}},
-    })
+        "roa": _round(roa and {k: roa[k] for k in ("rows", "tol_rad", "duration_s", "plant_variant")}),
+        "montecarlo": _round(_mc(mc)), "montecarlo_brick": _round(_mc(mc_brick)),
+        "margins": _round(margins and {"margins": margins["margins"], "ablation": margins.get("ablation", []),
+                                       "_meta": {k: margins["_meta"][k] for k in ("duration_s", "coarse", "seeds",
+                                                                                  "overrun_limit_lifted")}}),
+    }
 
 
 def payload_from_dir(out, scenarios, load, drive):
