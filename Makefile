@@ -87,16 +87,21 @@ venv: $(STAMP)
 $(STAMP):
 	@$(PYTHON) -c 'import sys; sys.exit(sys.version_info < (3, 11))' || \
 	  { echo "make venv: needs Python 3.11+ as $(PYTHON) (the pins in $(REQ)); set PYTHON=..." >&2; exit 1; }
-	rm -rf $(VENV)
-	$(PYTHON) -m venv $(VENV)
-	$(VPY) -m pip install --disable-pip-version-check --no-input --quiet --prefer-binary -r $(REQ)
-	$(VPY) -m pip check
-	@# the host commands on PATH (tipbot-host VERB), from this checkout (pip builds it with a
-	@# setuptools and wheel of its own, from the same package index)
-	@$(VPY) -m pip install --disable-pip-version-check --no-input --quiet --no-deps -e . \
-	  || echo "make venv: tipbot-host not installed (pip install -e . failed; python -m hostsim works)"
-	@touch $@
-	@echo "make venv: $(VENV) ready ($$($(VPY) --version))"
+	@# one shell for the whole build: Ctrl-C on a terminal (it reaches make too) ends it with pip's
+	@# one line and no stamp, so the next make builds the venv again; not make's error line after it.
+	@# Last, the host commands on PATH (tipbot-host VERB) from this checkout (pip builds it with a
+	@# setuptools and wheel of its own, from the same package index).
+	@trap 'interrupted=1' INT; \
+	  build() { \
+	    echo "make venv: building $(VENV) from $(REQ) (about a minute)"; \
+	    rm -rf $(VENV) && $(PYTHON) -m venv $(VENV) && \
+	    $(VPY) -m pip install --disable-pip-version-check --no-input --quiet --prefer-binary -r $(REQ) && \
+	    $(VPY) -m pip check || return; \
+	    $(VPY) -m pip install --disable-pip-version-check --no-input --quiet --no-deps -e . || [ -n "$$interrupted" ] \
+	      || echo "make venv: tipbot-host not installed (pip install -e . failed; python -m hostsim works)"; \
+	  }; \
+	  build; rc=$$?; [ -z "$$interrupted" ] || exit 0; [ $$rc -eq 0 ] || exit $$rc; \
+	  touch $@; echo "make venv: $(VENV) ready ($$($(VPY) --version))"
 
 test-fast: venv
 	@$(VPY) -m pytest tests -m "not slow" -q $(PYTEST_ARGS)

@@ -195,20 +195,17 @@ def _study_stand_in(tmp_path):
     return fake
 
 
-@pytest.mark.skipif(not hasattr(os, "fork"), reason="a terminal: pty")
-def test_ctrl_c_on_make_sim_is_one_line_and_status_130(tmp_path):
-    """Ctrl-C on a terminal reaches make and the study: one line (not make's '*** [sim] Error
-    130' after it), make ends on the signal; a SIGINT to the study alone is a failure."""
+def _ctrl_c_in_a_terminal(argv):
+    """Run argv in the repository on a terminal (a pty), press Ctrl-C once it printed 'started';
+    -> (its wait status, what the terminal showed besides 'started' and the echoed ^C: their
+    order varies under load)."""
     import pty
     import select
-    import signal as sig
-    import subprocess
     import time
-    fake = _study_stand_in(tmp_path)
     pid, fd = pty.fork()
     if pid == 0:
         os.chdir(REPO)
-        os.execvp("make", ["make", "-s", "sim", "VPY=%s" % fake])
+        os.execvp(argv[0], argv)
     out, sent, t0 = b"", False, time.monotonic()
     while time.monotonic() - t0 < 20:
         if select.select([fd], [], [], 0.1)[0]:
@@ -223,9 +220,19 @@ def test_ctrl_c_on_make_sim_is_one_line_and_status_130(tmp_path):
             os.write(fd, b"\x03")
             sent = True
     _, status = os.waitpid(pid, 0)
-    # what the terminal shows besides the stand-in's 'started' and the echoed ^C (their order varies under load)
-    text = out.decode(errors="replace").replace("^C", "").replace("started", "")
-    assert sent and os.WIFSIGNALED(status) and os.WTERMSIG(status) == sig.SIGINT     # the shell says 130
+    assert sent, out
+    return status, out.decode(errors="replace").replace("^C", "").replace("started", "")
+
+
+@pytest.mark.skipif(not hasattr(os, "fork"), reason="a terminal: pty")
+def test_ctrl_c_on_make_sim_is_one_line_and_status_130(tmp_path):
+    """Ctrl-C on a terminal reaches make and the study: one line (not make's '*** [sim] Error
+    130' after it), make ends on the signal; a SIGINT to the study alone is a failure."""
+    import signal as sig
+    import subprocess
+    fake = _study_stand_in(tmp_path)
+    status, text = _ctrl_c_in_a_terminal(["make", "-s", "sim", "VPY=%s" % fake])
+    assert os.WIFSIGNALED(status) and os.WTERMSIG(status) == sig.SIGINT     # the shell says 130
     assert [l for l in text.splitlines() if l.strip()] == ["sim: interrupted: nothing new written"], repr(text)
     p = subprocess.Popen(["make", "-s", "sim", "VPY=%s" % fake], cwd=REPO, stdout=subprocess.PIPE,
                          stderr=subprocess.PIPE, universal_newlines=True, start_new_session=True)
@@ -234,3 +241,28 @@ def test_ctrl_c_on_make_sim_is_one_line_and_status_130(tmp_path):
     grandchildren = subprocess.run(["pgrep", "-P", str(child)], stdout=subprocess.PIPE).stdout.split()
     os.kill(int(grandchildren[0]) if grandchildren else child, sig.SIGINT)      # the study alone
     assert p.wait(timeout=20) == 2 and "Error 130" in p.stderr.read()
+
+
+@pytest.mark.skipif(not hasattr(os, "fork"), reason="a terminal: pty")
+def test_ctrl_c_while_make_builds_the_venv_is_pips_one_line_and_no_stamp(tmp_path):
+    """A fresh clone's first make sim builds the venv for about a minute: Ctrl-C there shows pip's
+    one line, not make's error after it, and leaves no stamp (the next make builds it again).
+    PYTHON is a stand-in: its pip install waits to be interrupted."""
+    import signal as sig
+    fake = tmp_path / "python3"
+    fake.write_text("#!/usr/bin/env python3\nimport os, shutil, signal, sys, time\n"
+                    "a = sys.argv[1:]\n"
+                    "if a[:2] == ['-m', 'venv']:\n"
+                    "    os.makedirs(os.path.join(a[2], 'bin'))\n"
+                    "    shutil.copy(sys.argv[0], os.path.join(a[2], 'bin', 'python'))\n"
+                    "elif a[:3] == ['-m', 'pip', 'install']:\n"
+                    "    def stop(*_):\n        print('ERROR: Operation cancelled by user', file=sys.stderr)\n"
+                    "        sys.exit(1)\n"
+                    "    signal.signal(signal.SIGINT, stop)\n    print('started', flush=True)\n    time.sleep(30)\n")
+    fake.chmod(0o755)
+    venv = tmp_path / "venv"
+    status, text = _ctrl_c_in_a_terminal(["make", "-s", "venv", "VENV=%s" % venv, "PYTHON=%s" % fake])
+    assert os.WIFSIGNALED(status) and os.WTERMSIG(status) == sig.SIGINT
+    lines = [l for l in text.splitlines() if l.strip()]
+    assert lines[0].startswith("make venv: building ") and lines[1:] == ["ERROR: Operation cancelled by user"], lines
+    assert not [n for n in os.listdir(str(venv)) if n.startswith(".tipbot-venv")]
