@@ -53,7 +53,7 @@ TELEMETRY_EVERY ?= 20
 MEM_SECONDS ?= 60
 
 .DEFAULT_GOAL := help
-.PHONY: help venv test test-fast gains paper-check sim replay bench brick stage deploy run drive logs watch sim-brick \
+.PHONY: help venv test test-fast gains paper-check sim replay bench bench-steps brick stage deploy run drive logs watch sim-brick \
         sim-brick-stop clean distclean
 
 help:
@@ -62,11 +62,13 @@ help:
 	@echo "  test         run the whole test suite, as CI does (pytest tests/; PYTEST_ARGS=...)"
 	@echo "  test-fast    the suite without the tests marked slow (real processes, whole studies)"
 	@echo "  sim          paper scenarios + robustness, firmware in the loop -> out/sim/report.md"
+	@echo "               (and its tables into docs/results.md, docs/realistic-brick.md: docs/data/sim.json)"
 	@echo "  gains        regenerate gains/*.json; unchanged within tolerance: left as they are"
 	@echo "               (TS=0.010 VARIANT=paper|physical PARAMS=file: another TS/PARAMS gets its own file)"
 	@echo "  paper-check  compare the paper variant's gains with the paper's Appendix C"
 	@echo "  replay       replay a robot log on the host (LOG=file; GAINS=other.json)"
 	@echo "  bench        simulation real-time factor; instructions per tick and memory on the virtual brick"
+	@echo "               (and its output and tables into docs/benchmarks.md: docs/data/bench.json)"
 	@echo "  brick        set up the virtual brick for 'make bench' (root, 5-10 min)"
 	@echo "  stage        lay out what deploy copies, in $(STAGE) (DEPLOY_VARIANT=, CONFIG=)"
 	@echo "  deploy       copy what changed to the brick over ssh (HOST=robot@ev3dev.local; CONFIG=file,"
@@ -85,16 +87,21 @@ venv: $(STAMP)
 $(STAMP):
 	@$(PYTHON) -c 'import sys; sys.exit(sys.version_info < (3, 11))' || \
 	  { echo "make venv: needs Python 3.11+ as $(PYTHON) (the pins in $(REQ)); set PYTHON=..." >&2; exit 1; }
-	rm -rf $(VENV)
-	$(PYTHON) -m venv $(VENV)
-	$(VPY) -m pip install --disable-pip-version-check --no-input --quiet --prefer-binary -r $(REQ)
-	$(VPY) -m pip check
-	@# the host commands on PATH (tipbot-host VERB), from this checkout (pip builds it with a
-	@# setuptools and wheel of its own, from the same package index)
-	@$(VPY) -m pip install --disable-pip-version-check --no-input --quiet --no-deps -e . \
-	  || echo "make venv: tipbot-host not installed (pip install -e . failed; python -m hostsim works)"
-	@touch $@
-	@echo "make venv: $(VENV) ready ($$($(VPY) --version))"
+	@# one shell for the whole build: Ctrl-C on a terminal (it reaches make too) ends it with pip's
+	@# one line and no stamp, so the next make builds the venv again; not make's error line after it.
+	@# Last, the host commands on PATH (tipbot-host VERB) from this checkout (pip builds it with a
+	@# setuptools and wheel of its own, from the same package index).
+	@trap 'interrupted=1' INT; \
+	  build() { \
+	    echo "make venv: building $(VENV) from $(REQ) (about a minute)"; \
+	    rm -rf $(VENV) && $(PYTHON) -m venv $(VENV) && \
+	    $(VPY) -m pip install --disable-pip-version-check --no-input --quiet --prefer-binary -r $(REQ) && \
+	    $(VPY) -m pip check || return; \
+	    $(VPY) -m pip install --disable-pip-version-check --no-input --quiet --no-deps -e . || [ -n "$$interrupted" ] \
+	      || echo "make venv: tipbot-host not installed (pip install -e . failed; python -m hostsim works)"; \
+	  }; \
+	  build; rc=$$?; [ -z "$$interrupted" ] || exit 0; [ $$rc -eq 0 ] || exit $$rc; \
+	  touch $@; echo "make venv: $(VENV) ready ($$($(VPY) --version))"
 
 test-fast: venv
 	@$(VPY) -m pytest tests -m "not slow" -q $(PYTEST_ARGS)
@@ -111,8 +118,11 @@ gains: venv
 paper-check: venv
 	$(VPY) -m hostsim paper-check
 
+# Ctrl-C on a terminal reaches make as well as the study: the study's one line is all that is
+# printed and make ends on the signal (status 130); a SIGINT to the study alone fails as usual
 sim: venv
-	$(VPY) -m hostsim sim $(SIM_ARGS)
+	@trap 'interrupted=1' INT; $(VPY) -m hostsim sim $(SIM_ARGS); rc=$$?; \
+	  if [ $$rc -eq 130 ] && [ -n "$$interrupted" ]; then exit 0; fi; exit $$rc
 
 replay: $(if $(LOG),venv)
 	@test -n "$(LOG)" || { echo "usage: make replay LOG=path/to/run.log [GAINS=other.json]" >&2; exit 2; }
@@ -121,7 +131,15 @@ replay: $(if $(LOG),venv)
 # Instructions per control tick of tipbot_fw.bench on the virtual brick (an ARM926 under QEMU
 # with Debian armel's Python 3.11 + numpy 1.24: an approximation of the brick's Python 3.5 +
 # numpy 1.12, see docs/benchmarks.md). Without the brick it says how to make one.
+# make bench tees what its steps print to out/bench/output.txt; docs/benchmarks.md's generated
+# blocks are written from it (python -m hostsim docs --bench) when every step succeeded
 bench: venv
+	@mkdir -p out/bench
+	@{ $(MAKE) --no-print-directory bench-steps 2>&1; echo $$? >out/bench/status; } | tee out/bench/output.txt; \
+	  exit $$(cat out/bench/status)
+	@$(VPY) -m hostsim docs --bench out/bench/output.txt
+
+bench-steps: venv
 	$(VPY) -m hostsim bench-sim
 	@echo "== the control tick as it runs supervised: heartbeat, plausibility checks, log chunks to a file"
 	$(VPY) tools/tick-cost --ticks $(TICKS) -- python3 -m tipbot_fw.bench

@@ -32,6 +32,7 @@ COMMANDS = {
     "watch": ("hostsim.logs.watch", "live telemetry from the robot: scrolling plots, recording (make watch)"),
     "drive": ("hostsim.logs.drive", "drive the robot from the keyboard over UDP (make drive)"),
     "export": ("hostsim.logs.export", "a robot log as CSV for spreadsheets and notebooks"),
+    "docs": ("hostsim.studies.docblocks", "the docs pages' generated blocks from docs/data/ (make sim, make bench write them)"),
 }
 
 

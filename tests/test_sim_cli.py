@@ -77,9 +77,15 @@ def test_unknown_verb(capsys):
 @pytest.mark.slow
 def test_sim_writes_the_report(tmp_path, capsys):
     out = tmp_path / "sim"
+    sim_data = os.path.join(REPO, "docs", "data", "sim.json")
+    with open(sim_data, "rb") as f:
+        before = f.read()
+    # (without the five payload and slope scenarios, which ran here unasked: 39 s, now 15 s)
     code = main(["sim", "--out", str(out), "--scenarios", "section7", "--no-robustness", "--device", "memory",
-                 "--drive-scenarios", "drive_straight"])
+                 "--drive-scenarios", "drive_straight", "--load-scenarios"])
     assert code == 0
+    with open(sim_data, "rb") as f:
+        assert f.read() == before           # a partial study leaves the docs pages' figures alone
     report = (out / "report.md").read_text()
     assert "Where the paper's claims cannot hold" in report
     # the course: its tracking row (true path against the commanded one) and its plan view
@@ -107,6 +113,20 @@ def test_pip_install_puts_the_verbs_on_path_as_tipbot_host(capsys):
     module, func = entry["console_scripts"][0].split(" = ")[1].split(":")
     assert getattr(importlib.import_module(module), func)(["--help"]) == 0
     assert "watch" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("argv, docs", [
+    ([], True), (["--jobs", "1"], True), (["--no-docs"], False),
+    (["--scenarios", "section7"], False), (["--no-robustness"], False), (["--mc-runs", "5"], False),
+    (["--host-estimator", "kalman"], False), (["--drive-scenarios"], False)])
+def test_only_the_whole_default_study_writes_the_docs_pages(tmp_path, monkeypatch, argv, docs):
+    """make sim writes its generated blocks (hostsim.studies.sim_docs) only for the study they
+    describe: where it writes the report and with how many workers do not matter."""
+    from hostsim.studies import sim_study
+    seen = {}
+    monkeypatch.setattr(sim_study, "_study", lambda args, final: seen.setdefault("docs", args.docs) and 0)
+    sim_study.main(argv + ["--out", str(tmp_path / "sim")])
+    assert seen["docs"] is docs
 
 
 def test_an_interrupted_sim_says_so_in_one_line_and_keeps_the_previous_report(tmp_path, capsys, monkeypatch):
@@ -137,7 +157,14 @@ def test_long_jobs_say_how_far_they_are_while_they_run():
     _time.sleep(0.2)
     bar.close()
     lines = stream.getvalue().splitlines()
-    assert lines and lines[0].startswith("Monte Carlo: 1/4 done, ") and "s left" in lines[0]
+    assert lines[0] == "Monte Carlo: 4 to do"           # at once: the phase's start is no silence
+    assert lines[1].startswith("Monte Carlo: 1/4 done, ") and "s left" in lines[1]
+    assert "done in" not in lines[-1]                   # not all done: no closing line
+    stream = io.StringIO()
+    bar = Progress(2, "margins", every_s=60, stream=stream)
+    bar.update(2)
+    bar.close()
+    assert stream.getvalue().splitlines() == ["margins: 2 to do", "margins: 2/2 done in 0 s"]
 
 
 def test_tipbot_host_calls_itself_so(monkeypatch, capsys):
@@ -155,3 +182,87 @@ def test_tipbot_host_calls_itself_so(monkeypatch, capsys):
     monkeypatch.setattr(sys, "argv", ["-m"])
     assert main(["fly"]) == 2
     assert capsys.readouterr().err.startswith("python -m hostsim: unknown verb 'fly'")
+
+
+def _study_stand_in(tmp_path):
+    """A stand-in for the study behind make sim: says it started, then, on SIGINT, its one line."""
+    fake = tmp_path / "python"
+    fake.write_text("#!/usr/bin/env python3\nimport signal, sys, time\n"
+                    "def stop(*a):\n    print('sim: interrupted: nothing new written', file=sys.stderr)\n"
+                    "    sys.exit(130)\n"
+                    "signal.signal(signal.SIGINT, stop)\nprint('started', flush=True)\ntime.sleep(30)\n")
+    fake.chmod(0o755)
+    return fake
+
+
+def _ctrl_c_in_a_terminal(argv):
+    """Run argv in the repository on a terminal (a pty), press Ctrl-C once it printed 'started';
+    -> (its wait status, what the terminal showed besides 'started' and the echoed ^C: their
+    order varies under load)."""
+    import pty
+    import select
+    import time
+    pid, fd = pty.fork()
+    if pid == 0:
+        os.chdir(REPO)
+        os.execvp(argv[0], argv)
+    out, sent, t0 = b"", False, time.monotonic()
+    while time.monotonic() - t0 < 20:
+        if select.select([fd], [], [], 0.1)[0]:
+            try:
+                data = os.read(fd, 4096)
+            except OSError:
+                break
+            if not data:
+                break
+            out += data
+        if not sent and b"started" in out:
+            os.write(fd, b"\x03")
+            sent = True
+    _, status = os.waitpid(pid, 0)
+    assert sent, out
+    return status, out.decode(errors="replace").replace("^C", "").replace("started", "")
+
+
+@pytest.mark.skipif(not hasattr(os, "fork"), reason="a terminal: pty")
+def test_ctrl_c_on_make_sim_is_one_line_and_status_130(tmp_path):
+    """Ctrl-C on a terminal reaches make and the study: one line (not make's '*** [sim] Error
+    130' after it), make ends on the signal; a SIGINT to the study alone is a failure."""
+    import signal as sig
+    import subprocess
+    fake = _study_stand_in(tmp_path)
+    status, text = _ctrl_c_in_a_terminal(["make", "-s", "sim", "VPY=%s" % fake])
+    assert os.WIFSIGNALED(status) and os.WTERMSIG(status) == sig.SIGINT     # the shell says 130
+    assert [l for l in text.splitlines() if l.strip()] == ["sim: interrupted: nothing new written"], repr(text)
+    p = subprocess.Popen(["make", "-s", "sim", "VPY=%s" % fake], cwd=REPO, stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE, universal_newlines=True, start_new_session=True)
+    assert p.stdout.readline() == "started\n"
+    child = next(int(c) for c in subprocess.check_output(["pgrep", "-P", str(p.pid)]).split())
+    grandchildren = subprocess.run(["pgrep", "-P", str(child)], stdout=subprocess.PIPE).stdout.split()
+    os.kill(int(grandchildren[0]) if grandchildren else child, sig.SIGINT)      # the study alone
+    assert p.wait(timeout=20) == 2 and "Error 130" in p.stderr.read()
+
+
+@pytest.mark.skipif(not hasattr(os, "fork"), reason="a terminal: pty")
+def test_ctrl_c_while_make_builds_the_venv_is_pips_one_line_and_no_stamp(tmp_path):
+    """A fresh clone's first make sim builds the venv for about a minute: Ctrl-C there shows pip's
+    one line, not make's error after it, and leaves no stamp (the next make builds it again).
+    PYTHON is a stand-in: its pip install waits to be interrupted."""
+    import signal as sig
+    fake = tmp_path / "python3"
+    fake.write_text("#!/usr/bin/env python3\nimport os, shutil, signal, sys, time\n"
+                    "a = sys.argv[1:]\n"
+                    "if a[:2] == ['-m', 'venv']:\n"
+                    "    os.makedirs(os.path.join(a[2], 'bin'))\n"
+                    "    shutil.copy(sys.argv[0], os.path.join(a[2], 'bin', 'python'))\n"
+                    "elif a[:3] == ['-m', 'pip', 'install']:\n"
+                    "    def stop(*_):\n        print('ERROR: Operation cancelled by user', file=sys.stderr)\n"
+                    "        sys.exit(1)\n"
+                    "    signal.signal(signal.SIGINT, stop)\n    print('started', flush=True)\n    time.sleep(30)\n")
+    fake.chmod(0o755)
+    venv = tmp_path / "venv"
+    status, text = _ctrl_c_in_a_terminal(["make", "-s", "venv", "VENV=%s" % venv, "PYTHON=%s" % fake])
+    assert os.WIFSIGNALED(status) and os.WTERMSIG(status) == sig.SIGINT
+    lines = [l for l in text.splitlines() if l.strip()]
+    assert lines[0].startswith("make venv: building ") and lines[1:] == ["ERROR: Operation cancelled by user"], lines
+    assert not [n for n in os.listdir(str(venv)) if n.startswith(".tipbot-venv")]

@@ -160,3 +160,43 @@ def test_summary_columns_carry_units_and_split_the_estimation_error_by_unit():
     assert m["final_est_error_by_unit"] == {"m": 0.002, "rad": 0.03, "m/s": 0.4, "rad/s": 3.0}
     row = runner.summary_rows({"runs": {"linear/optimal": m}})[0]
     assert row[-4:] == ["2.0e-03", "3.0e-02", "4.0e-01", "3.0e+00"]
+
+
+def test_margins_are_labelled_to_three_digits_in_rows_of_five_panels(figures):
+    from hostsim.studies.margins import MARGINS
+    rows = [{"gains": "physical", "effect": m.key, "sign": s, "margin": 32.8125, "at_least": False}
+            for m in MARGINS for s in m.signs]
+    plots.margins_figure({"margins": rows, "_meta": {"duration_s": 30}}, "unused.png", MARGINS)
+    fig = figures[-1]
+    shown = [a for a in fig.axes if a.get_visible()]
+    assert len(shown) == len(MARGINS) and len({round(a.get_position().y0, 3) for a in shown}) == -(-len(MARGINS) // 5)
+    labels = {t.get_text() for a in shown for t in a.texts}
+    assert labels == {"32.8"}
+
+
+def test_a_long_run_shows_its_last_second_enlarged_and_a_short_one_does_not(figures):
+    # 50 s of a 15 Hz dither draw a solid band; the inset redraws the panel's own lines in the last second
+    sc = parse_scenario({"duration_s": 50.0}, "<test>")
+    t = np.arange(10000) * 0.005
+    x = np.zeros((len(t), 10))
+    x[:, 9] = 0.2 * np.sin(2 * np.pi * 15 * t)
+    run = RunResult(t_s=t, x=x, u=np.zeros((len(t), 5)), w=np.zeros((len(t), 5)), completed=True)
+    plots.velocities(sc, {"firmware/optimal": run}, "velocities.png")
+    panels = [a for a in figures[0].axes if a.get_visible() and a.get_ylabel()]
+    assert len(panels) == 5 and all(len(a.child_axes) == 1 for a in panels)
+    zoom = panels[-1].child_axes[0]
+    assert zoom.get_xlim() == pytest.approx((49.0 - 0.005, 50.0 - 0.005))
+    assert zoom.get_title() == "last 1 s, enlarged"
+    (line,) = zoom.get_lines()
+    assert len(line.get_xdata()) == 201 and np.ptp(line.get_ydata()) == pytest.approx(0.4, abs=0.01)
+    plots.velocities(parse_scenario({"duration_s": 4.0}, "<test>"), section7_like_runs(), "velocities.png")
+    assert not [a for a in figures[1].axes if a.child_axes]
+
+
+def test_a_long_caption_gets_a_smaller_font_not_cut():
+    fig, _ = plots._grid(4, 1, "x" * 80)
+    assert fig._suptitle.get_fontsize() == pytest.approx(11.0 * 68 / 80)
+    plots.plt.close(fig)
+    fig, _ = plots._grid(4, 1, "short")
+    assert fig._suptitle.get_fontsize() == 11.0
+    plots.plt.close(fig)

@@ -235,7 +235,7 @@ def test_the_ramp_scenario_drives_over_its_ramp():
 
 
 def test_make_sims_load_table_shows_the_joints_the_hunting_and_the_lean():
-    from hostsim.studies.sim_study import load_table
+    from hostsim.studies.report import load_table
     m = {"upright": True, "completed": True, "stop_reason": "completed", "duration_s": 30.0,
          "joint_offset_rad": [0.0123, 0.0046], "saturated_fraction": 0.002,
          "oscillation_above_1hz": {"th2": {"hz": 2.5, "amplitude": 0.0021}, "th3": {"hz": 2.5, "amplitude": 0.0004}},

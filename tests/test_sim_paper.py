@@ -167,6 +167,7 @@ def test_the_reference_governor_keeps_section7_within_the_motors():
     assert gov.x_e[0] > 0.1 and np.any(gov.u_e != 0)
 
 
+@pytest.mark.slow      # three runs of 50 s, the whole scenario (make test-fast stays under 90 s)
 def test_the_host_modes_run_the_firmwares_default_estimator():
     # linear and nonlinear with the Kalman filter of the gains' kalman block (in floats, ideal
     # measurement): they balance Section 8 as the firmware does, their estimate converges, and
@@ -185,5 +186,7 @@ def test_the_host_modes_run_the_firmwares_default_estimator():
     with pytest.raises(TipbotError, match="estimator"):
         simulate_linear(g, sc, estimator="observer")
     # `python -m hostsim run/sim --host-estimator kalman`: its own labels, the scenario's bounds on them
-    _, runs = run_scenario(sc, modes=["nonlinear", "firmware"], sysfs=False, host_estimator="kalman")
+    # (the labels only: 2 s of the scenario, not its 50, as the runs above have shown how it runs)
+    _, runs = run_scenario(replace(sc, duration_s=2.0), modes=["nonlinear", "firmware"], sysfs=False,
+                           host_estimator="kalman")
     assert sorted(runs) == ["firmware/optimal", "nonlinear-kalman/optimal"]

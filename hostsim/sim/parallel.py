@@ -24,12 +24,15 @@ def default_jobs():
 
 
 class Progress(object):
-    """'DESC: k/N done, T s so far, about L s left' on stderr every ``every_s`` while it runs."""
+    """'DESC: k/N done, T s so far, about L s left' on stderr every ``every_s`` while it runs,
+    with a line when it starts and one when all is done: a phase that starts or ends between
+    two ticks of the clock leaves no silence longer than every_s."""
 
     def __init__(self, total, desc, every_s=PROGRESS_EVERY_S, stream=None):
         self.total, self.desc, self.done, self.every_s = total, desc or "runs", 0, every_s
         self.stream = sys.stderr if stream is None else stream
         self.t0 = time.monotonic()
+        self._say("%s: %d to do" % (self.desc, total))
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
         self._thread.start()
@@ -39,11 +42,16 @@ class Progress(object):
         left = ", about %.0f s left" % (elapsed / self.done * (self.total - self.done)) if self.done else ""
         return "%s: %d/%d done, %.0f s so far%s" % (self.desc, self.done, self.total, elapsed, left)
 
+    def _say(self, text):
+        try:
+            print(text, file=self.stream, flush=True)
+            return True
+        except (OSError, ValueError):
+            return False
+
     def _run(self):
         while not self._stop.wait(self.every_s):
-            try:
-                print(self.line(), file=self.stream, flush=True)
-            except (OSError, ValueError):
+            if not self._say(self.line()):
                 return
 
     def update(self, n=1):
@@ -51,6 +59,8 @@ class Progress(object):
 
     def close(self):
         self._stop.set()
+        if self.done == self.total:
+            self._say("%s: %d/%d done in %.0f s" % (self.desc, self.done, self.total, time.monotonic() - self.t0))
 
 
 def _ignore_sigint():

@@ -95,12 +95,46 @@ def _shade(ax, sc, runs):
 
 def _grid(nrows, ncols, title, height=2.0):
     fig, axes = plt.subplots(nrows, ncols, figsize=(6.0 * ncols, height * nrows), sharex=True, squeeze=False)
-    fig.suptitle(title, fontsize=11)
+    # about 68 characters of 11 pt fit a 6-inch column: a longer caption gets a smaller font, not cut
+    fig.suptitle(title, fontsize=min(11.0, 11.0 * 68 * ncols / max(1, len(title))))
     # Fixed margins: tight_layout costs more than drawing these figures.
     top = 1.0 - 0.8 / (height * nrows)
     fig.subplots_adjust(left=0.09 / ncols + 0.03, right=0.98, bottom=0.45 / (height * nrows), top=top,
                         hspace=0.35, wspace=0.22)
     return fig, axes
+
+
+# A run this long draws its fast signals (a joint dithering by an encoder count) as a solid band
+# on its whole time axis: each panel also shows its last ZOOM_S, enlarged (issue 19, item 8).
+LONG_RUN_S = 20.0
+ZOOM_S = 1.0
+
+
+def _zoom_end(axes, t_end):
+    """An inset of each panel's last ZOOM_S of a long run, redrawn from the panel's own lines
+    (panels that have an inset already keep theirs)."""
+    if t_end < LONG_RUN_S:
+        return
+    t0 = t_end - ZOOM_S
+    for ax in np.ravel(axes):
+        lines = [l for l in ax.get_lines() if len(l.get_xdata()) > 2]      # not the rails (axhline)
+        if not lines or ax.child_axes:
+            continue
+        ins = ax.inset_axes([0.64, 0.55, 0.35, 0.43])
+        for line in lines:
+            t, y = np.asarray(line.get_xdata(), dtype=float), np.asarray(line.get_ydata(), dtype=float)
+            sel = t >= t0
+            ins.plot(t[sel], y[sel], color=line.get_color(), linestyle=line.get_linestyle(),
+                     linewidth=min(line.get_linewidth(), 0.9), alpha=line.get_alpha())
+        ins.set_xlim(t0, t_end)
+        ins.tick_params(labelsize=5, pad=1)
+        ins.set_title("last %g s, enlarged" % ZOOM_S, fontsize=5.5, pad=1.5)
+        ins.grid(True, linewidth=0.3)
+        ins.patch.set_alpha(0.9)
+
+
+def _t_end(runs):
+    return max(run.t_s[-1] for run in runs.values())
 
 
 def _save(fig, path):
@@ -148,6 +182,7 @@ def states_estimates(sc, runs, path):
     fig, axes = _grid(5, 2, caption(sc.name, "states_estimates"))
     # Column-major like the paper: positions left (a-e), rates right (f-j).
     _state_panels(axes.T, sc, runs, range(10), estimates=True)
+    _zoom_end(axes, _t_end(runs))
     _xlabel(axes)
     return _save(fig, path)
 
@@ -237,6 +272,7 @@ def _inset_demand(ax, runs, i, u_max_v, ts_s):
 def positions(sc, runs, path):
     fig, axes = _grid(5, 1, caption(sc.name, "positions"))
     _state_panels(axes, sc, runs, range(5))
+    _zoom_end(axes, _t_end(runs))
     _xlabel(axes)
     return _save(fig, path)
 
@@ -244,6 +280,7 @@ def positions(sc, runs, path):
 def velocities(sc, runs, path):
     fig, axes = _grid(5, 1, caption(sc.name, "velocities"))
     _state_panels(axes, sc, runs, range(5, 10))
+    _zoom_end(axes, _t_end(runs))
     _xlabel(axes)
     return _save(fig, path)
 
@@ -293,6 +330,7 @@ def inputs(sc, runs, u_max_v, path):
             _inset_demand(ax, runs, i, u_max_v, ts_s)
         ax.set_ylabel(name, fontsize=8)
         ax.set_title("(%s)" % LETTERS[p], fontsize=8, loc="left")
+    _zoom_end(axes, _t_end(runs))
     _figure_legend(fig, axes.flat[0])
     axes.flat[-1].set_xlabel("t [s]", fontsize=8)
     if not any_cut:     # the caption's dotted line: say why there is none
@@ -400,8 +438,12 @@ def margins_figure(res, path, margins):
     each gains file balances with (each sign where there are two; a triangle: at least that, the
     search's end), the realistic brick's dashed."""
     labels = sorted({r["gains"] for r in res["margins"]})
-    fig, axes = plt.subplots(1, len(margins), figsize=(2.4 * len(margins), 3.4))
-    for ax, m in zip(axes, margins):
+    ncols = min(5, len(margins))             # rows of five panels: readable at the report's width
+    nrows = -(-len(margins) // ncols)
+    fig, axes = plt.subplots(nrows, ncols, figsize=(2.4 * ncols, 3.0 * nrows + 0.6), squeeze=False)
+    for ax in axes.flat[len(margins):]:
+        ax.set_visible(False)
+    for ax, m in zip(axes.flat, margins):
         names, values, beyond = [], [], []
         for label in labels:
             for r in sorted((r for r in res["margins"] if r["gains"] == label and r["effect"] == m.key),
@@ -412,7 +454,8 @@ def margins_figure(res, path, margins):
         x = np.arange(len(values))
         ax.bar(x, values, color=["C%d" % labels.index(n.split(" ")[0]) for n in names])
         for xi, v, b in zip(x, values, beyond):
-            ax.annotate("%g" % round(v, 4), (xi, v), ha="center", va="bottom", fontsize=6)
+            # three significant digits, as the table: a bisection's points (32.8125) claim more than its tolerance
+            ax.annotate("%.3g" % v, (xi, v), ha="center", va="bottom", fontsize=6)
             if b:
                 ax.plot(xi, v, marker="^", color="k", markersize=5)
         if m.realistic_value is not None:
@@ -426,7 +469,7 @@ def margins_figure(res, path, margins):
     fig.suptitle("Largest value of each effect alone at which the robot still balances %g s "
                  "(bars; triangle: at least that, the search's upper end; dashed: the realistic brick)"
                  % res["_meta"]["duration_s"], fontsize=9)
-    fig.tight_layout(rect=(0, 0, 1, 0.92))
+    fig.tight_layout(rect=(0, 0, 1, 1 - 0.25 / (3.0 * nrows + 0.6)))
     return _write(fig, path)
 
 

@@ -242,6 +242,45 @@ def mc_table(mc):
     return "\n".join(out)
 
 
+def load_table(docs):
+    """One line per run of the payload and slope scenarios: up, when it stopped, the joints'
+    largest offset from their reference after the first 5 s, the share of ticks saturated, the
+    strongest line above 1 Hz in each joint (hunting), and on a constant slope link 1's lean
+    from the vertical (mean after 5 s) beside the one the robot stands at with straight joints."""
+    rows = ["| scenario | run | upright | stopped at s | max abs(th2 - ref) rad | max abs(th3 - ref) rad | saturated % "
+            "| th2, th3 line > 1 Hz mrad | lean rad (straight joints) |",
+            "|---|---|---|---|---|---|---|---|---|"]
+    for doc in docs:
+        for label, m in doc["runs"].items():
+            off = m.get("joint_offset_rad") or [None, None]
+            osc = m.get("oscillation_above_1hz") or {}
+            lines = ", ".join("-" if osc.get(j) is None else "%.1f" % (1000 * osc[j]["amplitude"]) for j in ("th2", "th3"))
+            lean = "-" if m.get("equilibrium_lean_rad") is None else "%.4f (%.4f)" % (
+                m["lean_from_vertical_rad"], m["equilibrium_lean_rad"])
+            rows.append("| %s | %s | %s | %s | %s | %s | %.1f | %s | %s |" % (
+                doc["scenario"], label, "yes" if m["upright"] else "no (%s)" % m["stop_reason"],
+                "-" if m["completed"] else "%.1f" % m["duration_s"],
+                *("-" if v is None else "%.3f" % v for v in off), 100 * (m["saturated_fraction"] or 0.0), lines, lean))
+    return "\n".join(rows)
+
+
+def drive_table(docs):
+    """One line per course run: up, the tracking figures (the simulated robot's true path against
+    the commanded one, hostsim.sim.tracking), the share of ticks saturated."""
+    rows = ["| scenario | run | upright | RMS cross-track cm | final position error cm | final heading error deg | "
+            "max speed m/s | max yaw rate deg/s | saturated % |", "|---|---|---|---|---|---|---|---|---|"]
+    for doc in docs:
+        for label, m in doc["runs"].items():
+            t = m.get("tracking")
+            if not t:
+                continue
+            rows.append("| %s | %s | %s | %.1f | %.1f | %.1f | %.2f | %.0f | %.1f |" % (
+                doc["scenario"], label, "yes" if m["upright"] else "no (%s)" % m["stop_reason"],
+                100 * t["rms_cross_track_m"], 100 * t["final_position_error_m"], t["final_heading_error_deg"],
+                t["max_speed_mps"], t["max_yaw_rate_dps"], 100 * (m["saturated_fraction"] or 0.0)))
+    return "\n".join(rows)
+
+
 CONVENTIONS = """\
 Runs are labelled `<mode>/<controller>`:
 

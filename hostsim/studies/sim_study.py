@@ -26,6 +26,9 @@ LOAD_SCENARIOS = ("payload_100g", "payload_put_on", "slope_up_5deg", "slope_down
 DRIVE_SCENARIOS = ("drive_straight", "drive_square", "drive_eight")
 ABLATION_GAINS = ("gains/physical.json",)     # what make deploy ships
 GAINS = ("paper", "physical")
+# the options that change what the docs pages' generated blocks show (hostsim.studies.sim_docs)
+DOCS_DEFAULTS = ("scenarios", "drive_scenarios", "load_scenarios", "device", "mc_runs", "mc_brick_runs",
+                 "mc_duration", "roa_tol", "kw0", "no_robustness", "no_margins", "host_estimator")
 
 
 def ensure_gains(say):
@@ -36,45 +39,6 @@ def ensure_gains(say):
             say("%s is missing: generating it (python -m hostsim gains --variant %s)" % (os.path.relpath(path, REPO_ROOT), name))
             if gains.main(["--variant", name]) != 0:
                 raise SystemExit("could not generate %s" % path)
-
-
-def load_table(docs):
-    """One line per run of the payload and slope scenarios: up, when it stopped, the joints'
-    largest offset from their reference after the first 5 s, the share of ticks saturated, the
-    strongest line above 1 Hz in each joint (hunting), and on a constant slope link 1's lean
-    from the vertical (mean after 5 s) beside the one the robot stands at with straight joints."""
-    rows = ["| scenario | run | upright | stopped at s | max abs(th2 - ref) rad | max abs(th3 - ref) rad | saturated % "
-            "| th2, th3 line > 1 Hz mrad | lean rad (straight joints) |",
-            "|---|---|---|---|---|---|---|---|---|"]
-    for doc in docs:
-        for label, m in doc["runs"].items():
-            off = m.get("joint_offset_rad") or [None, None]
-            osc = m.get("oscillation_above_1hz") or {}
-            lines = ", ".join("-" if osc.get(j) is None else "%.1f" % (1000 * osc[j]["amplitude"]) for j in ("th2", "th3"))
-            lean = "-" if m.get("equilibrium_lean_rad") is None else "%.4f (%.4f)" % (
-                m["lean_from_vertical_rad"], m["equilibrium_lean_rad"])
-            rows.append("| %s | %s | %s | %s | %s | %s | %.1f | %s | %s |" % (
-                doc["scenario"], label, "yes" if m["upright"] else "no (%s)" % m["stop_reason"],
-                "-" if m["completed"] else "%.1f" % m["duration_s"],
-                *("-" if v is None else "%.3f" % v for v in off), 100 * (m["saturated_fraction"] or 0.0), lines, lean))
-    return "\n".join(rows)
-
-
-def drive_table(docs):
-    """One line per course run: up, the tracking figures (the simulated robot's true path against
-    the commanded one, hostsim.sim.tracking), the share of ticks saturated."""
-    rows = ["| scenario | run | upright | RMS cross-track cm | final position error cm | final heading error deg | "
-            "max speed m/s | max yaw rate deg/s | saturated % |", "|---|---|---|---|---|---|---|---|---|"]
-    for doc in docs:
-        for label, m in doc["runs"].items():
-            t = m.get("tracking")
-            if not t:
-                continue
-            rows.append("| %s | %s | %s | %.1f | %.1f | %.1f | %.2f | %.0f | %.1f |" % (
-                doc["scenario"], label, "yes" if m["upright"] else "no (%s)" % m["stop_reason"],
-                100 * t["rms_cross_track_m"], 100 * t["final_position_error_m"], t["final_heading_error_deg"],
-                t["max_speed_mps"], t["max_yaw_rate_dps"], 100 * (m["saturated_fraction"] or 0.0)))
-    return "\n".join(rows)
 
 
 def firmware_note(docs, mc):
@@ -124,7 +88,19 @@ def main(argv=None):
                     help="the linear and nonlinear runs' estimator: the paper's detector (default, the paper's "
                          "simulation) or the firmware's default, the Kalman filter, to compare the firmware's "
                          "runs with it (make sim SIM_ARGS='--host-estimator kalman')")
+    ap.add_argument("--no-docs", action="store_true", help="leave the docs pages' generated blocks as they are "
+                    "(only the whole default study writes them, with docs/data/sim.json)")
+    ap.add_argument("--docs-from-saved", action="store_true", help="run nothing: write docs/data/sim.json and the "
+                    "docs pages' generated blocks from the whole default study saved in --out (after a block was added)")
     args = ap.parse_args(argv)
+    if args.docs_from_saved:
+        from hostsim.studies import docblocks
+        from hostsim.studies import sim_docs
+        payload, date = sim_docs.payload_from_dir(args.out, SCENARIOS, LOAD_SCENARIOS, DRIVE_SCENARIOS)
+        docblocks.refresh("sim", payload, date=date)
+        return 0
+    # the docs pages show the whole default study: a partial or different one leaves them alone
+    args.docs = not args.no_docs and all(getattr(args, k) == ap.get_default(k) for k in DOCS_DEFAULTS)
     final = args.out
     # the new report is made beside the old one and swapped in at the end: an interrupted or
     # failed study leaves the previous report whole
@@ -201,22 +177,30 @@ def _study(args, final):
     if drive_docs:
         notes.append("## Driving (issue 21)\n\nCourses on the realistic brick with `physical` gains, the firmware "
                      "following its drive plan; tracking measured on the simulated robot's true path against the "
-                     "commanded one (the plan view in each scenario's directory).\n\n" + drive_table(drive_docs) + "\n")
+                     "commanded one (the plan view in each scenario's directory).\n\n" + report.drive_table(drive_docs) + "\n")
     if load_docs:
         notes.append("## Payloads on link 3 and slopes (issue 22)\n\nThe realistic brick with `physical` gains; "
-                     "each scenario's files under its own directory.\n\n" + load_table(load_docs) + "\n")
+                     "each scenario's files under its own directory.\n\n" + report.load_table(load_docs) + "\n")
     report.write_report(args.out, docs, roa_res, mc_res, extra_notes=notes, firmware_note=note,
                         mc_brick=mc_brick, margins=margins_res)
     _swap_in(args.out, final)
     path = os.path.join(final, "report.md")
+    if args.docs:
+        from hostsim.studies import docblocks
+        from hostsim.studies import sim_docs
+        docblocks.refresh("sim", sim_docs.payload(docs, load_docs, drive_docs, roa_res, mc_res, mc_brick, margins_res),
+                          say=say)
+    else:
+        say("the docs pages' generated blocks left as they are (%s)" % (
+            "--no-docs" if args.no_docs else "not the whole default study"))
     for doc in docs:
         print(runner.format_summary(doc))
         print()
     print("(%s)" % runner.SUMMARY_NOTE)
     print()
     tables = [
-        ("Driving courses (realistic brick)", drive_docs and drive_table(drive_docs)),
-        ("Payloads on link 3 and slopes (realistic brick)", load_docs and load_table(load_docs)),
+        ("Driving courses (realistic brick)", drive_docs and report.drive_table(drive_docs)),
+        ("Payloads on link 3 and slopes (realistic brick)", load_docs and report.load_table(load_docs)),
         ("Region of attraction (largest recovered initial angle)", roa_res and roa.format_table(roa_res)),
         ("Monte Carlo (firmware in the loop, physical model)", mc_res and montecarlo.format_table(mc_res)),
         ("Monte Carlo on the realistic brick", mc_brick and montecarlo.format_table(mc_brick)),
