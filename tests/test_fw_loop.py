@@ -247,6 +247,26 @@ def test_a_wheel_held_at_its_saturation_stops_the_loop_after_max_saturated_s():
     assert first + 100 <= log.count <= first + 100 + logfile.CHUNK_ROWS
 
 
+def test_the_saturation_count_takes_the_32_bit_bricks_index_integers(monkeypatch):
+    # on the brick's 32-bit ARM numpy's index integer (intp) is int32, and bincount refuses an
+    # int64 array ("Cannot cast ... according to the rule 'safe'": make bench found it on the
+    # virtual brick); here a bincount with that brick's rule
+    import tipbot_fw.loop as fw_loop
+    real = np.bincount
+
+    def bincount_32(x, *a, **kw):
+        if not np.can_cast(np.asarray(x).dtype, np.int32, 'safe'):
+            raise TypeError('Cannot cast array data from dtype({!r}) to dtype(int32)'.format(np.asarray(x).dtype))
+        return real(x, *a, **kw)
+    monkeypatch.setattr(fw_loop.np, 'bincount', bincount_32)
+    monkeypatch.setattr(fw_loop.np, 'intp', np.int32)
+    dev = MemoryDevices()
+    dev.gyro = (0, 20)
+    loop, _, log = make_loop(VirtualClock(), dev=dev, duration_s=5.0, max_saturated_s=0.5)
+    with pytest.raises(Saturated):
+        loop.run()
+
+
 def test_the_saturation_stop_counts_each_motors_flags_over_its_window_across_the_ring():
     # rows whose flags also carry an overrun and skipped periods; the ring (120 rows) shorter
     # than the window (1 s, 200 ticks), counted once a chunk (50 rows)

@@ -418,7 +418,9 @@ class ControlLoop(object):
         a, b = start % cap, k % cap
         flags = column[a:b] if a < b else np.concatenate((column[a:], column[:b]))
         # the flag values' low bits (one bincount), then each motor's: a few calls per chunk
-        seen = np.bincount(flags.astype(np.int64) & SATURATION_BITS, minlength=SATURATION_BITS + 1).tolist()
+        # (bincount takes the platform's index integer: int32 on the brick's 32-bit ARM)
+        seen = np.bincount((flags.astype(np.int64) & SATURATION_BITS).astype(np.intp),
+                           minlength=SATURATION_BITS + 1).tolist()
         window = self._sat_window
         window.append((ticks, k - start, [sum(seen[v] for v in values) for values in _WITH_BIT]))
         total = sum(t for t, _, _ in window)
