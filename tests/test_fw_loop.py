@@ -11,6 +11,7 @@ from tipbot_fw.record import logfile
 from tipbot_fw.io.clock import VirtualClock
 from tipbot_fw.cores.core import make_core
 from tipbot_fw.io.devices import MemoryDevices
+import tipbot_fw.loop as fw_loop
 from tipbot_fw.loop import SIDE_WAIT_S, ControlLoop
 from tipbot_fw.guard.safety import OverrunLimit, Saturated, Terminated
 from tipbot_fw.session import run_session
@@ -247,26 +248,6 @@ def test_a_wheel_held_at_its_saturation_stops_the_loop_after_max_saturated_s():
     assert first + 100 <= log.count <= first + 100 + logfile.CHUNK_ROWS
 
 
-def test_the_saturation_count_takes_the_32_bit_bricks_index_integers(monkeypatch):
-    # on the brick's 32-bit ARM numpy's index integer (intp) is int32, and bincount refuses an
-    # int64 array ("Cannot cast ... according to the rule 'safe'": make bench found it on the
-    # virtual brick); here a bincount with that brick's rule
-    import tipbot_fw.loop as fw_loop
-    real = np.bincount
-
-    def bincount_32(x, *a, **kw):
-        if not np.can_cast(np.asarray(x).dtype, np.int32, 'safe'):
-            raise TypeError('Cannot cast array data from dtype({!r}) to dtype(int32)'.format(np.asarray(x).dtype))
-        return real(x, *a, **kw)
-    monkeypatch.setattr(fw_loop.np, 'bincount', bincount_32)
-    monkeypatch.setattr(fw_loop.np, 'intp', np.int32)
-    dev = MemoryDevices()
-    dev.gyro = (0, 20)
-    loop, _, log = make_loop(VirtualClock(), dev=dev, duration_s=5.0, max_saturated_s=0.5)
-    with pytest.raises(Saturated):
-        loop.run()
-
-
 def test_the_saturation_stop_counts_each_motors_flags_over_its_window_across_the_ring():
     # rows whose flags also carry an overrun and skipped periods; the ring (120 rows) shorter
     # than the window (1 s, 200 ticks), counted once a chunk (50 rows)
@@ -276,21 +257,26 @@ def test_the_saturation_stop_counts_each_motors_flags_over_its_window_across_the
     sat_l = vocabulary.FLAG_BITS['sat_l']
     k = 0
 
-    def chunk(saturated_of_20):
+    runs = logfile.CHUNK_ROWS // fw_loop.SAT_SAMPLE
+
+    def chunk(share):
+        # the chunk's rows in runs of SAT_SAMPLE: the first `share` of them with the left wheel
+        # saturated, the others with the right one every other run (below the stop's share)
         nonlocal k
         for i in range(k, k + logfile.CHUNK_ROWS):
+            run = (i - k) // fw_loop.SAT_SAMPLE
             log.mem[i % log.capacity, column] = OVERRUN + (3 << vocabulary.SKIP_SHIFT) + (
-                sat_l if i % 20 < saturated_of_20 else vocabulary.FLAG_BITS['sat_r'] * (i % 2))
+                sat_l if run < share * runs else vocabulary.FLAG_BITS['sat_r'] * (run % 2))
         k += logfile.CHUNK_ROWS
         loop._watch_saturation(k)
 
     for _ in range(12):
-        chunk(17)           # 85 % of the ticks of every window: a motor busy, not lost
-    assert loop.stats.max_saturated_share == pytest.approx(0.85)
-    chunk(20)               # (3 x 85 + 100) / 4: 89 %
-    with pytest.raises(Saturated, match=r'the left_wheel motor at its duty limit in 92 % of the ticks of the '
+        chunk(0.8)          # 80 % of the ticks of every window: a motor busy, not lost
+    assert loop.stats.max_saturated_share == pytest.approx(0.8)
+    chunk(1.0)              # (3 x 80 + 100) / 4: 85 %
+    with pytest.raises(Saturated, match=r'the left_wheel motor at its duty limit in 90 % of the ticks of the '
                                         r'last 1\.00 s \(limits.max_saturated_s = 1.0 s\) up to tick 699'):
-        chunk(20)           # (2 x 85 + 2 x 100) / 4
+        chunk(1.0)          # (2 x 80 + 2 x 100) / 4
 
 
 def test_back_from_a_stall_the_supervisor_ended_the_run_ends_as_the_supervisors_stall():

@@ -49,8 +49,8 @@ stall caught up); a motor at its duty limit in config.SATURATED_SHARE of the tic
 limits.max_saturated_s is a robot that no longer balances, whatever the estimate says: one that
 fell while its gyro froze (the estimate still upright, the motors at full power on the floor),
 that runs away on a wheel encoder that stopped counting, or that is blocked or held. The loop
-then stops (Saturated, exit 6). The rows' saturation flags are counted once a chunk, with the
-log's chunk, from the ring in memory: no tick pays for it. With it, a wheel whose encoder keeps
+then stops (Saturated, exit 6). The saturation flags of every SAT_SAMPLE-th row are counted once
+a chunk, with the log's chunk, from the ring in memory: no tick pays for it. With it, a wheel whose encoder keeps
 one count at every chunk's end for STUCK_S while its motor is driven hard (STUCK_DUTY_PCT) is a
 dead encoder or a blocked wheel: DeviceFailure (exit 5), sooner than the saturation stop, which
 a law with integral action and anti-windup may never reach on such a wheel.
@@ -59,8 +59,7 @@ Motors are not stopped here: the caller (tipbot_fw.session) stops them in its fi
 """
 import collections
 import gc
-
-import numpy as np
+import struct
 
 from tipbot_fw.config import MAX_SATURATED_S, MAX_STALL_S, SATURATED_SHARE
 from tipbot_fw.guard.heartbeat import NOT_SUPERVISED
@@ -87,9 +86,13 @@ WIND_DOWN_S = 1.0
 
 OVERRUN = FLAG_BITS['overrun']
 FALL = FLAG_BITS['fall']
-# each motor's saturation bit, in MOTOR_ROLES order, and the flag values (of the 16) that have it
+# each motor's saturation bit, in MOTOR_ROLES order
 SATURATED = [FLAG_BITS[b] for b in ('sat_r', 'sat_l', 'sat_th2', 'sat_th3')]
-_WITH_BIT = [[v for v in range(SATURATION_BITS + 1) if v & bit] for bit in SATURATED]
+# The saturation stop reads every SAT_SAMPLE-th row's flags: a runaway or a robot fallen on its
+# wheels saturates nearly every tick, a balancing robot at most a third of a second's (the
+# module's docstring), so 20 samples a second tell them apart as well as 200 would
+SAT_SAMPLE = 10
+_FLAG = struct.Struct('<d')
 
 
 # A wheel encoder that stops counting while its motor is driven (a cable pulled out, the motor's
@@ -103,13 +106,15 @@ STUCK_S = 0.75
 
 
 def _wheel_slots(log):
-    """(a view of the ring's rows, the wheels' count slots, their duty slots) in whichever core's
-    row the log holds, or None if it has no such columns."""
+    """(a Struct of a wheel pair, the byte offsets in a row of the wheels' counts and of their
+    duties) in whichever core's row the log holds, or None if it has no such columns: two
+    unpack_from calls a chunk read them (a numpy call costs the brick ~20,000 instructions)."""
     names = list(log.rows.mem_names)
-    for counts, dtype in ((('rel_r', 'rel_l'), '<i8'), (('enc_r', 'enc_l'), '<f8')):
+    for counts, fmt in ((('rel_r', 'rel_l'), '<2q'), (('enc_r', 'enc_l'), '<2d')):
         if all(n in names for n in counts + ('duty_r', 'duty_l')):
-            view = np.frombuffer(log.data, dtype=dtype).reshape(log.capacity, log.row_bytes // 8)
-            return view, [names.index(n) for n in counts], [names.index(n) for n in ('duty_r', 'duty_l')]
+            at = [8 * names.index(n) for n in counts + ('duty_r', 'duty_l')]
+            if at[1] == at[0] + 8 and at[3] == at[2] + 8:
+                return struct.Struct(fmt), at[0], at[2]
     return None
 
 
@@ -374,7 +379,8 @@ class ControlLoop(object):
         self._next_wind = self._wind_every
         self._min_slack = min(SLACK_S, SLACK_FRACTION * period)
         self._sat_from = 0          # the first tick the saturation stop has not counted yet
-        self._sat_window = collections.deque()   # (ticks, rows counted, [rows saturated per motor])
+        self._sat_window = collections.deque()   # (ticks, rows sampled, [rows saturated per motor])
+        self._sat_sums = [0, 0, [0] * len(SATURATED)]     # the window's ticks, samples and counts
         self._sat_ticks = self.max_saturated_s / period
         self._wheels = _wheel_slots(log)
         self._wheel_seen = []       # each chunk's end: ([wheel counts], [wheel duties], tick)
@@ -403,9 +409,9 @@ class ControlLoop(object):
         return min(self._next_flush, self._next_battery, self._next_wind)
 
     def _watch_saturation(self, k):
-        """Count the saturation flags of the rows stored since the last count (those the ring
-        still holds); Saturated if a motor was at its limit in SATURATED_SHARE of the rows of
-        the last max_saturated_s (the module's docstring)."""
+        """Count the saturation flags of every SAT_SAMPLE-th row stored since the last count (of
+        those the ring still holds); Saturated if a motor was at its limit in SATURATED_SHARE of
+        the samples of the last max_saturated_s (the module's docstring)."""
         log = self.log
         cap = log.capacity
         start = max(self._sat_from, k - cap)
@@ -414,30 +420,46 @@ class ControlLoop(object):
         if ticks <= 0:
             return
         self._watch_wheels(k)
-        column = log.mem[:, log.rows.flags_index]
-        a, b = start % cap, k % cap
-        flags = column[a:b] if a < b else np.concatenate((column[a:], column[:b]))
-        # the flag values' low bits (one bincount), then each motor's: a few calls per chunk
-        # (bincount takes the platform's index integer: int32 on the brick's 32-bit ARM)
-        seen = np.bincount((flags.astype(np.int64) & SATURATION_BITS).astype(np.intp),
-                           minlength=SATURATION_BITS + 1).tolist()
-        window = self._sat_window
-        window.append((ticks, k - start, [sum(seen[v] for v in values) for values in _WITH_BIT]))
-        total = sum(t for t, _, _ in window)
-        while total - window[0][0] >= self._sat_ticks:
-            total -= window.popleft()[0]
-        if total < self._sat_ticks:
+        # every SAT_SAMPLE-th row's flags (on the tick grid), read with struct: no numpy call (one
+        # costs the brick ~20,000 instructions) and nothing in the tick
+        data, row_bytes, flags_at = log.data, log.row_bytes, 8 * log.rows.flags_index
+        unpack = _FLAG.unpack_from
+        r = l2 = j2 = j3 = sampled = 0
+        for j in range(start + (-start) % SAT_SAMPLE, k, SAT_SAMPLE):
+            low = int(unpack(data, (j % cap) * row_bytes + flags_at)[0]) & SATURATION_BITS
+            sampled += 1
+            if low:         # written out: a loop over the four bits costs the brick more
+                r += low & 1
+                l2 += (low >> 1) & 1
+                j2 += (low >> 2) & 1
+                j3 += low >> 3
+        counts = [r, l2, j2, j3]
+        # running sums of the window (a few list operations a chunk: no generator over it)
+        window, sums = self._sat_window, self._sat_sums
+        window.append((ticks, sampled, counts))
+        sums[0] += ticks
+        sums[1] += sampled
+        total = sums[2]
+        for i, c in enumerate(counts):
+            total[i] += c
+        while sums[0] - window[0][0] >= self._sat_ticks:
+            old_ticks, old_rows, old_counts = window.popleft()
+            sums[0] -= old_ticks
+            sums[1] -= old_rows
+            for i, c in enumerate(old_counts):
+                total[i] -= c
+        if sums[0] < self._sat_ticks or not max(total) or not sums[1]:
             return
-        rows = sum(n for _, n, _ in window)
-        for i in range(len(SATURATED)):
-            share = sum(c[i] for _, _, c in window) / float(rows)
+        rows = float(sums[1])
+        for i, c in enumerate(total):
+            share = c / rows
             if share > self.stats.max_saturated_share:
                 self.stats.max_saturated_share = share
             if share >= SATURATED_SHARE:
                 raise Saturated('motor held at its limit: the {} motor at its duty limit in {:.0f} % of the ticks of the '
                                 'last {:.2f} s (limits.max_saturated_s = {} s) up to tick {}: the robot no longer '
                                 'balances (fallen while a sensor stopped, running away on an encoder that stopped '
-                                'counting, blocked or held)'.format(MOTOR_ROLES[i], 100.0 * share, total * self.period_s,
+                                'counting, blocked or held)'.format(MOTOR_ROLES[i], 100.0 * share, sums[0] * self.period_s,
                                                                    self.max_saturated_s, k - 1))
 
     def _watch_wheels(self, k):
@@ -446,10 +468,10 @@ class ControlLoop(object):
         least STUCK_DUTY_PCT each time -> DeviceFailure. A few Python operations a chunk."""
         if self._wheels is None or k < 1:
             return
-        view, count_at, duty_at = self._wheels
-        row = view[(k - 1) % self.log.capacity]
+        pair, count_at, duty_at = self._wheels
+        base = ((k - 1) % self.log.capacity) * self.log.row_bytes
         seen = self._wheel_seen
-        seen.append(([int(row[i]) for i in count_at], [int(row[i]) for i in duty_at], k))
+        seen.append((pair.unpack_from(self.log.data, base + count_at), pair.unpack_from(self.log.data, base + duty_at), k))
         while k - seen[0][2] > STUCK_S / self.period_s:
             seen.pop(0)
         if k - seen[0][2] < STUCK_S / self.period_s - 1:
