@@ -160,13 +160,14 @@ class ControlLoop(object):
     (tipbot_fw.guard.heartbeat); encoder_bound: a plausibility.EncoderBound (None: only the gyro's
     bound is checked); side: a side task (tipbot_fw.side_tasks) or None, settable until run();
     overrun_window_s, max_lost_s, max_stall_s: the overrun stop; max_saturated_s: the saturation
-    stop (the module's docstring; inf: none);
+    stop (the module's docstring; inf: none); watch_wheels: the wheel watch (False: none);
     on_scheduling: called with one line saying which scheduling the run got, before the first tick.
     """
 
     def __init__(self, devices, core, clock, log, period_s, battery_v, battery_period_s=1.0,
                  overrun_window_s=0.3, max_lost_s=0.04, max_stall_s=MAX_STALL_S,
-                 max_saturated_s=MAX_SATURATED_S, duration_s=None, realtime_priority=0, heartbeat=NOT_SUPERVISED,
+                 max_saturated_s=MAX_SATURATED_S, watch_wheels=True, duration_s=None, realtime_priority=0,
+                 heartbeat=NOT_SUPERVISED,
                  encoder_bound=None, side=None, on_scheduling=None):
         self.devices = devices
         self.core = core
@@ -179,6 +180,7 @@ class ControlLoop(object):
         self.max_lost_s = max_lost_s
         self.max_stall_s = max_stall_s
         self.max_saturated_s = max_saturated_s
+        self.watch_wheels = watch_wheels
         self.n_ticks = None if duration_s is None else max(1, int(round(duration_s / period_s)))
         self.realtime_priority = realtime_priority
         self.heartbeat = heartbeat
@@ -382,7 +384,7 @@ class ControlLoop(object):
         self._sat_window = collections.deque()   # (ticks, rows sampled, [rows saturated per motor])
         self._sat_sums = [0, 0, [0] * len(SATURATED)]     # the window's ticks, samples and counts
         self._sat_ticks = self.max_saturated_s / period
-        self._wheels = _wheel_slots(log)
+        self._wheels = _wheel_slots(log) if self.watch_wheels else None
         self._wheel_seen = []       # each chunk's end: ([wheel counts], [wheel duties], tick)
         return min(self._next_flush, self._next_battery, self._next_wind)
 
