@@ -313,6 +313,19 @@ def test_the_integrators_take_out_an_offset_the_filter_cannot_see():
     assert ends['integral'] < 0.4 * ends['proportional'] and ends['integral'] < 0.005
 
 
+def _wheels_held_ahead(gains, hold_m):
+    """A device source: both wheels still for the calibration, then pushed hold_m ahead of their
+    zero and held there (a hand, a wall)."""
+    held = int(round(hold_m / (gains.kalman.wheel_radius_m * 2 * math.pi / 360)))
+    reads = [0]
+
+    def source():
+        reads[0] += 1
+        c = min(held, max(0, reads[0] - 50))
+        return (c, c, 0, 0), (0, 0)
+    return source
+
+
 @pytest.mark.parametrize('battery_period_s', [1.0, 5.0])     # the wind-down's own second, whatever the battery's
 def test_the_integrators_stay_within_their_authority_when_the_wheels_are_held(tmp_path, battery_period_s, monkeypatch):
     # the wheels pushed 30 cm ahead of their zero and held there (a hand, a wall): without a limit
@@ -323,14 +336,7 @@ def test_the_integrators_stay_within_their_authority_when_the_wheels_are_held(tm
     # its motor is driven hard) sooner: both off here, to see the integrators' long hold
     gains = committed('physical')
     hold_m = 0.3
-    held = int(round(hold_m / (gains.kalman.wheel_radius_m * 2 * math.pi / 360)))
-    reads = [0]
-
-    def source():
-        reads[0] += 1
-        c = min(held, max(0, reads[0] - 50))   # still for the calibration, then pushed ahead
-        return (c, c, 0, 0), (0, 0)
-    dev = MemoryDevices(source=source)
+    dev = MemoryDevices(source=_wheels_held_ahead(gains, hold_m))
     log = str(tmp_path / 'held.log')
     monkeypatch.setattr(fw_loop, 'SATURATED_SHARE', 2.0)
     monkeypatch.setattr(fw_loop, 'STUCK_DUTY_PCT', 101)
@@ -363,16 +369,9 @@ def test_wheels_held_while_driven_hard_are_a_blocked_wheel_even_without_the_satu
     # or dead wheel below its limit): the wheel watch (a count that stays at every chunk's end for
     # STUCK_S while its motor is driven at STUCK_DUTY_PCT or more) ends the run, exit 5
     gains = committed('physical')
-    held = int(round(0.3 / (gains.kalman.wheel_radius_m * 2 * math.pi / 360)))
-    reads = [0]
-
-    def source():
-        reads[0] += 1
-        c = min(held, max(0, reads[0] - 50))
-        return (c, c, 0, 0), (0, 0)
     monkeypatch.setattr(fw_loop, 'SATURATED_SHARE', 2.0)
     log = str(tmp_path / 'held.log')
-    code, header = run_session(MemoryDevices(source=source), gains, S.fw_config(), VirtualClock(), log_path=log,
+    code, header = run_session(MemoryDevices(source=_wheels_held_ahead(gains, 0.3)), gains, S.fw_config(), VirtualClock(), log_path=log,
                                duration_s=8.0, say=lambda m: None, cues=OwnerCues(streams=()))
     assert code == 5 and header['stop_reason'] == 'device_failure', header.get('stop_message')
     assert "wheel's encoder read" in header['stop_message']

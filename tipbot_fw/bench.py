@@ -144,7 +144,7 @@ def run_memory(n_ticks, gains, bare=False, sender=None, whole=False, drive=False
     # files' encoders (--whole) stand still, which the saturation stop and the wheel watch would
     # end (the saturation count, once a chunk, is still paid and counted; the wheel watch too,
     # but for --whole)
-    extra.update(max_saturated_s=float('inf'), watch_wheels=whole is False)
+    extra.update(max_saturated_s=float('inf'), watch_wheels=not whole)
     loop = ControlLoop(dev, core, MonotonicClock() if whole else FrozenClock(), log, gains.ts_s, 8.0,
                        battery_period_s=config['battery_period_s'],
                        overrun_window_s=config['limits']['overrun_window_s'],

@@ -86,8 +86,6 @@ WIND_DOWN_S = 1.0
 
 OVERRUN = FLAG_BITS['overrun']
 FALL = FLAG_BITS['fall']
-# each motor's saturation bit, in MOTOR_ROLES order
-SATURATED = [FLAG_BITS[b] for b in ('sat_r', 'sat_l', 'sat_th2', 'sat_th3')]
 # The saturation stop reads every SAT_SAMPLE-th row's flags: a runaway or a robot fallen on its
 # wheels saturates nearly every tick, a balancing robot at most a third of a second's (the
 # module's docstring), so 20 samples a second tell them apart as well as 200 would
@@ -382,7 +380,7 @@ class ControlLoop(object):
         self._min_slack = min(SLACK_S, SLACK_FRACTION * period)
         self._sat_from = 0          # the first tick the saturation stop has not counted yet
         self._sat_window = collections.deque()   # (ticks, rows sampled, [rows saturated per motor])
-        self._sat_sums = [0, 0, [0] * len(SATURATED)]     # the window's ticks, samples and counts
+        self._sat_sums = [0, 0, [0] * len(MOTOR_ROLES)]     # the window's ticks, samples and counts
         self._sat_ticks = self.max_saturated_s / period
         self._wheels = _wheel_slots(log) if self.watch_wheels else None
         self._wheel_seen = []       # each chunk's end: ([wheel counts], [wheel duties], tick)
@@ -401,6 +399,7 @@ class ControlLoop(object):
                 log.mem[(k - 1) % log.capacity, log.rows.flags_index] += WOUND_DOWN
             self._next_wind = k - k % self._wind_every + self._wind_every
         if k >= self._next_flush and (release - now() > min_slack or k - log.flushed >= self._urgent):
+            self._watch_wheels(k)               # the watches read the ring before the chunk goes
             self._watch_saturation(k)
             log.flush(k)                        # whole chunks: the file's unit
             self._next_flush = k - k % log.chunk_rows + log.chunk_rows
@@ -421,7 +420,6 @@ class ControlLoop(object):
         self._sat_from = k
         if ticks <= 0:
             return
-        self._watch_wheels(k)
         # every SAT_SAMPLE-th row's flags (on the tick grid), read with struct: no numpy call (one
         # costs the brick ~20,000 instructions) and nothing in the tick
         data, row_bytes, flags_at = log.data, log.row_bytes, 8 * log.rows.flags_index
@@ -430,7 +428,8 @@ class ControlLoop(object):
         for j in range(start + (-start) % SAT_SAMPLE, k, SAT_SAMPLE):
             low = int(unpack(data, (j % cap) * row_bytes + flags_at)[0]) & SATURATION_BITS
             sampled += 1
-            if low:         # written out: a loop over the four bits costs the brick more
+            if low:         # vocabulary: sat_r, sat_l, sat_th2, sat_th3 are bits 0-3, in MOTOR_ROLES
+                # order; written out: a loop over the four bits costs the brick more
                 r += low & 1
                 l2 += (low >> 1) & 1
                 j2 += (low >> 2) & 1

@@ -457,24 +457,28 @@ class Margins:
         return self.radius <= ROBUST_RADIUS_MAX and self.damping >= ROBUST_DAMPING_MIN
 
 
+def model_plants(name, p, where, ts_s, delays, gains):
+    """[((model, delay_s, motor gain, where), delayed plant, R_w)]: the model variant `name` of
+    parameters `p`, linearized in SI, with each delay and motor gain (in that order)."""
+    from hostsim.model.equations import RobotModel, state_scale_to_si
+    model = RobotModel(name, p)
+    ac, bc = model.linearize()
+    t = state_scale_to_si(model.variant)
+    ac, bc = t @ ac @ np.linalg.inv(t), t @ bc
+    return [((name, d, g, where), delayed_plant(ac, bc * g, ts_s, d), p["rw_m"]) for d in delays for g in gains]
+
+
 class UncertaintySet:
     """The plants of the uncertainty above at one period, built once; margins(kd) -> Margins.
     extra: [(label, parameters)]: more robots, each as the physical model with the duties landing
     2 ms into the tick (hostsim.model.spread: where an identification's fit is loose)."""
 
     def __init__(self, params, ts_s, extra=(), payload=False):
-        from hostsim.model.equations import RobotModel, state_scale_to_si
         from hostsim.model.params import payload_params, scaled_params
         self.plants = []
 
         def add(name, p, where, delays, gains):
-            model = RobotModel(name, p)
-            ac, bc = model.linearize()
-            t = state_scale_to_si(model.variant)
-            ac, bc = t @ ac @ np.linalg.inv(t), t @ bc
-            for d in delays:
-                for g in gains:
-                    self.plants.append(((name, d, g, where), delayed_plant(ac, bc * g, ts_s, d), p["rw_m"]))
+            self.plants += model_plants(name, p, where, ts_s, delays, gains)
         for name in ROBUST_MODELS:
             add(name, params, 1.0, ROBUST_DELAYS_S[::-1], ROBUST_INPUT_GAINS[::-1])   # the harder first
         for f in ROBUST_WHEEL_RADII:
@@ -484,6 +488,13 @@ class UncertaintySet:
                 (0.002,), (1.0,))
         for label, p in extra:
             add("physical", p, label, (0.002,), (1.0,))
+
+    @classmethod
+    def of(cls, plants):
+        """A set of these plants only (model_plants' lists)."""
+        out = cls.__new__(cls)
+        out.plants = list(plants)
+        return out
 
     def holds(self, kd):
         """margins(kd).robust, stopping at the first plant that fails (for the design's ladder)."""

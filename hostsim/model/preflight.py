@@ -25,10 +25,7 @@ made for this robot: the check refuses and says which measurement and by how muc
 """
 import math
 
-import numpy as np
-
 from hostsim.model import bodies, kalman
-from hostsim.model.equations import RobotModel, state_scale_to_si
 from hostsim.model.params import scaled_params
 
 FACTOR_RANGE = (0.2, 5.0)
@@ -52,16 +49,9 @@ def loop_holds(kd, params, ts_s):
     Not mere stability at one delay: a robot the loop holds only when the brick's timing and the
     battery are kind is not one the gains were made for (a link 3 twice as heavy as described is
     stable at 2 ms and a nominal motor, unstable at 4 ms or a motor 20 % stronger)."""
-    ac, bc = RobotModel("physical", params).linearize()
-    t = state_scale_to_si(RobotModel("physical", params).variant)
-    ac, bc = t @ ac @ np.linalg.inv(t), t @ bc
-    for delay_s in kalman.ROBUST_DELAYS_S[::-1]:            # the harder first
-        for gain in kalman.ROBUST_INPUT_GAINS[::-1]:
-            radius, damping = kalman.loop_margins(kd, *kalman.delayed_plant(ac, bc * gain, ts_s, delay_s),
-                                                  params["rw_m"])
-            if not (radius <= kalman.ROBUST_RADIUS_MAX and damping >= kalman.ROBUST_DAMPING_MIN):
-                return False
-    return True
+    plants = kalman.model_plants("physical", params, 1.0, ts_s, kalman.ROBUST_DELAYS_S[::-1],
+                                 kalman.ROBUST_INPUT_GAINS[::-1])      # the harder first
+    return kalman.UncertaintySet.of(plants).holds(kd)
 
 
 def _edge(holds, inside, outside):
