@@ -47,6 +47,15 @@ def test_bad_command_line(capsys, no_devices):
     assert e.value.code == 2
 
 
+@pytest.mark.parametrize('abbreviated', ['--conf', '--sysfs', '--gain'])
+def test_an_abbreviated_option_is_refused(abbreviated, capsys, no_devices):
+    """The supervisor finds --config and --sysfs-root by their whole names: an abbreviation the
+    controller took would give the two another robot's configuration."""
+    with pytest.raises(SystemExit) as e:
+        cli.main(['run', '--gains', PHYSICAL_GAINS, abbreviated, 'x.json'])
+    assert e.value.code == 2 and 'unrecognized arguments: {}'.format(abbreviated) in capsys.readouterr().err
+
+
 def test_missing_devices(tmp_path, capsys):
     empty = tmp_path / 'sys'
     empty.mkdir()

@@ -112,6 +112,13 @@ def test_a_course_file_reads_as_segments(tmp_path):
     assert read_course(path, LIMITS) == [(0.2, 0.0, 5.0), (0.0, math.radians(-90), 1.0)]
 
 
+def test_a_course_file_saved_with_a_byte_order_mark_reads(tmp_path):
+    """Windows' Notepad saves UTF-8 with a BOM: the same course."""
+    p = tmp_path / 'bom.json'
+    p.write_bytes(b'\xef\xbb\xbf' + json.dumps([{'speed_mps': 0.2, 'yaw_rate_dps': 0, 'duration_s': 5}]).encode())
+    assert read_course(str(p), LIMITS) == [(0.2, 0.0, 5.0)]
+
+
 @pytest.mark.parametrize('doc, words', [
     ({'speed_mps': 0.1}, 'must be a JSON list of segments'),
     ([], 'must be a JSON list of segments'),

@@ -59,6 +59,46 @@ def test_stale_reordered_and_malformed_datagrams_are_dropped(receiver):
     assert receiver.dropped == {'stale': 2, 'foreign': 0, 'malformed': 2} and receiver.obeyed == 1
 
 
+def test_the_sequence_number_wraps_and_a_restarted_sender_is_ahead(receiver):
+    """Serial-number arithmetic: past 2**32 - 1 the count goes on at 0; a number less than half the
+    range behind the last obeyed is stale even across the wrap."""
+    send(receiver, datagram(2 ** 32 - 1, 0.1, 0.0))
+    assert receiver.poll(1.0)[0] == pytest.approx(0.1)
+    send(receiver, datagram(0, 0.15, 0.0))
+    assert receiver.poll(1.05)[0] == pytest.approx(0.15)
+    send(receiver, datagram(2 ** 32 - 2, 0.2, 0.0), datagram(2 ** 31 + 1, 0.2, 0.0))
+    assert receiver.poll(1.1)[0] == pytest.approx(0.15) and receiver.dropped['stale'] == 2
+    send(receiver, datagram(2 ** 31 - 1, 0.05, 0.0))          # under half the range ahead of 0
+    assert receiver.poll(1.15)[0] == pytest.approx(0.05) and receiver.obeyed == 3
+
+
+def test_a_drive_program_started_again_is_obeyed(receiver, monkeypatch):
+    """tipbot-host drive counts from its clock's milliseconds: a second program's datagrams come
+    after the first's last one (here 300 sent, 1 s apart on its clock), across the u32's wrap."""
+    from hostsim.logs import drive as host_drive
+
+    class Keys(object):
+        def __init__(self, n):
+            self.n = n
+
+        def read(self, wait):
+            time.sleep(wait)
+            self.n -= 1
+            return [] if self.n >= 0 else ['q']
+    clock_s = [4.0e9]          # its milliseconds past 2**32 several times: the modulus counts
+    monkeypatch.setattr(host_drive.time, 'time', lambda: clock_s[0])
+    port = receiver.sock.getsockname()[1]
+    for sends in (300, 5):
+        obeyed = receiver.obeyed
+        assert host_drive.drive('127.0.0.1', port, Keys(sends), rate_hz=1000.0, say=lambda m: None) == sends
+        time.sleep(0.05)
+        for _ in range(sends):
+            receiver.poll(0.0)
+        assert receiver.obeyed > obeyed
+        clock_s[0] += 1.0
+    assert receiver.dropped['stale'] == 0
+
+
 def test_only_the_host_that_started_the_run_is_obeyed():
     r = Receiver(0, host='192.0.2.7', sock=_bound())       # the ssh session came from elsewhere
     try:

@@ -44,13 +44,24 @@ def _positive_int(text):
     return int(text)
 
 
+class _ExactOptions(argparse.ArgumentParser):
+    """A parser (and, being the subparsers' class, theirs) that takes options by their whole name
+    only: the supervisor reads --config and --sysfs-root from the same arguments by exact name
+    (tipbot_fw.supervisor._option), so an abbreviation such as --conf would give the two processes
+    different robots; refused here, it is a usage error before any motor runs."""
+
+    def __init__(self, *args, **kwargs):
+        kwargs['allow_abbrev'] = False
+        argparse.ArgumentParser.__init__(self, *args, **kwargs)
+
+
 def _parser(argv=None):
     """The command line's parser. The experiments' and identify's own options come from their
     modules, imported only when ``argv`` (default sys.argv) names their command or asks for help:
     a run does not keep them in the brick's memory."""
     argv = sys.argv[1:] if argv is None else argv
     full = any(a in argv for a in ('fall-test', 'swing-test', 'identify', '-h', '--help'))
-    p = argparse.ArgumentParser(prog='python3 -m tipbot_fw', description='tipbot firmware',
+    p = _ExactOptions(prog='python3 -m tipbot_fw', description='tipbot firmware',
                                 epilog=exit_codes.help_text(),
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = p.add_subparsers(dest='command')

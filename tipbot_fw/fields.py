@@ -223,7 +223,7 @@ def loads(data):
     reader cannot take: invalid UTF-8 or JSON, NaN or Infinity, duplicate keys, numbers no float
     holds (1e400, 10**400 written out), nesting deeper than MAX_DEPTH."""
     try:
-        text = data.decode('utf-8')
+        text = data.decode('utf-8-sig')     # a byte-order mark (Windows Notepad's UTF-8) is no error
     except UnicodeError as e:
         raise JsonProblem('is not UTF-8 text: {}'.format(e))
     try:

@@ -25,7 +25,7 @@ import time
 
 import hostsim
 from hostsim.errors import TipbotError
-from tipbot_fw.drive.remote import COMMAND, MAGIC
+from tipbot_fw.drive.remote import COMMAND, MAGIC, SEQ_MODULUS
 
 DEFAULT_PORT = 5006
 RATE_HZ = 20.0
@@ -97,7 +97,12 @@ def drive(address, port, keys, rate_hz=RATE_HZ, child=None, say=print):
     except (OSError, UnicodeError) as e:
         raise DriveError("drive: %s: %s" % (address, e))
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    state, seq, period = (0.0, 0.0), 0, 1.0 / rate_hz
+    # The count starts at the clock's milliseconds: at RATE_HZ it falls behind the clock, so a
+    # drive program started again during a run is ahead of the one before it (the firmware obeys
+    # only numbers after the last obeyed, modulo 2**32: tipbot_fw.drive.remote.is_after).
+    state, period = (0.0, 0.0), 1.0 / rate_hz
+    seq = int(time.time() * 1000.0) % SEQ_MODULUS
+    sent = 0
     next_send = time.monotonic()
     shown = None
     ended = False               # the keys' input ended (a script's): the command stays, the run goes on
@@ -117,7 +122,7 @@ def drive(address, port, keys, rate_hz=RATE_HZ, child=None, say=print):
                 say("drive: speed %+.2f m/s, turn %+.0f deg/s" % state)
                 shown = state
             if time.monotonic() >= next_send:
-                seq += 1
+                seq, sent = (seq + 1) % SEQ_MODULUS, sent + 1
                 try:
                     sock.sendto(COMMAND.pack(MAGIC, seq, state[0], state[1]), target)
                 except OSError:
@@ -125,7 +130,7 @@ def drive(address, port, keys, rate_hz=RATE_HZ, child=None, say=print):
                 next_send += period
     finally:
         sock.close()
-    return seq
+    return sent
 
 
 def main(argv=None):

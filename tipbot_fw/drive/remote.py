@@ -7,8 +7,10 @@
 
 Which datagrams are obeyed: only those of one host, the one that started the run (the address
 ssh says the session comes from, $SSH_CLIENT; without ssh, the first sender is taken and kept),
-each with a sequence number above the last one obeyed (a stale or reordered datagram is
-dropped), within the gains' limits (clipped to them: a remote's keys ask for 'faster' and get
+each with a sequence number after the last one obeyed (a stale or reordered datagram is
+dropped; "after" in serial-number arithmetic, RFC 1982, so the u32 wraps: a sender may start its
+count anywhere, and ``tipbot-host drive`` starts it at its clock's milliseconds, so that a drive
+program started again during a run is ahead of the one before it), within the gains' limits (clipped to them: a remote's keys ask for 'faster' and get
 the fastest allowed). With no command obeyed for TIMEOUT_S the command is zero: the robot
 comes to rest and keeps balancing.
 
@@ -49,6 +51,13 @@ LOOKAHEAD_TICKS = 28
 REFILL_BELOW = 14
 POLL_TICKS = 4
 MAX_DATAGRAMS = 32          # read in one call, at most
+SEQ_MODULUS = 1 << 32       # the datagram's u32
+
+
+def is_after(seq, last):
+    """Whether sequence number ``seq`` comes after ``last`` (None: nothing obeyed yet), in
+    serial-number arithmetic (RFC 1982): less than half the u32's range ahead, modulo 2**32."""
+    return last is None or 0 < (seq - last) % SEQ_MODULUS < SEQ_MODULUS // 2
 
 
 class RemoteError(ValueError):
@@ -75,7 +84,7 @@ class Receiver(object):
                 raise RemoteError('--remote {}: {}'.format(port, e))
         self.sock.setblocking(False)
         self.host = host
-        self.seq = -1
+        self.seq = None
         self.command = (0.0, 0.0)
         self.last_s = None
         self.dropped = {'stale': 0, 'foreign': 0, 'malformed': 0}
@@ -102,8 +111,9 @@ class Receiver(object):
             self.dropped['foreign'] += 1
             return
         _, seq, speed, yaw_dps = COMMAND.unpack(data)
-        if seq <= self.seq or not (math.isfinite(speed) and math.isfinite(yaw_dps)):
-            self.dropped['stale' if seq <= self.seq else 'malformed'] += 1
+        after = is_after(seq, self.seq)
+        if not after or not (math.isfinite(speed) and math.isfinite(yaw_dps)):
+            self.dropped['malformed' if after else 'stale'] += 1
             return
         self.seq = seq
         self.command = (float(speed), math.radians(yaw_dps))
