@@ -62,26 +62,43 @@ def test_tracking_figures():
     assert tracking.tracking_metrics(off, straight)["rms_cross_track_m"] == pytest.approx(0.02)
 
 
-def test_the_stop_time_runs_from_the_reference_at_zero_to_the_wheels_at_rest():
-    """metrics.stop_time_s: a course of 0.2 m/s for 5 s then 2 s of rest; the reference reaches
-    zero at 5 s plus its smoothstep (T from the limits), the wheels' 0.1 s mean must then stay
-    within 0.05 m/s for 0.5 s."""
-    from hostsim.sim.metrics import stop_time_s
-    from tipbot_fw.drive.course import transition_s
-    lim = (0.6, 3.0)
-    t_zero = 5.0 + transition_s(0.2, *lim)
-    t = np.arange(0.0, 7.0, 0.005)
-    course = [(0.2, 0.0, 5.0), (0.0, 0.0, 2.0)]
-    # at rest 0.3 s after the reference: a decaying overshoot, then still
-    v = np.where(t < t_zero, 0.2, np.where(t < t_zero + 0.3, -0.1, 0.0))
-    # + 0.05 s: the 0.1 s mean of -0.1 m/s and rest is within 0.05 m/s half-way
-    assert stop_time_s(t, v, course, lim) == pytest.approx(0.3 + 0.05, abs=0.011)
-    # rocking at 0.08 m/s, 2.5 Hz, after the stop: never at rest
-    rocking = np.where(t < t_zero, 0.2, 0.08 * np.sin(2 * math.pi * 2.5 * t))
-    assert stop_time_s(t, rocking, course, lim) is None
+def test_the_stop_time_runs_from_the_stop_command_until_the_robot_is_at_rest():
+    """metrics.stop_time_s: a course of 0.2 m/s for 5 s then 3 s of rest, timed from the stop
+    command (5 s). A balancing robot's limit cycle around a fixed point (0.13 m/s at its peaks, at
+    2-3 Hz) is rest; a creep, or coming back after an overshoot, is not."""
+    from hostsim.sim.metrics import REST_WINDOW_S, stop_time_s
+    t = np.arange(0.0, 8.0, 0.005)
+    course = [(0.2, 0.0, 5.0), (0.0, 0.0, 3.0)]
+
+    def travel(after):
+        """0.2 m/s until 5 s, then `after(tau)` (m, from where the robot was at 5 s)."""
+        return np.where(t < 5.0, 0.2 * t, 1.0 + after(np.maximum(t - 5.0, 0.0)))
+
+    def braking(tau, time_s=0.3):      # from 0.2 m/s to rest at a constant deceleration
+        tau = np.minimum(tau, time_s)
+        return 0.2 * tau - 0.1 / time_s * tau ** 2
+
+    def cycle(tau, hz):
+        return 0.13 / (2 * math.pi * hz) * np.sin(2 * math.pi * hz * tau)
+    for hz in (2.0, 2.5, 3.0):
+        # braked in 0.3 s, then the limit cycle: at rest within a few hundredths of the wheels' stop
+        stop = stop_time_s(t, travel(lambda tau: braking(tau) + cycle(tau, hz)), course)
+        assert stop == pytest.approx(0.3, abs=0.05)
+        # the limit cycle alone from the command on (a stop in no time): within half the window
+        assert stop_time_s(t, travel(lambda tau: cycle(tau, hz)), course) <= REST_WINDOW_S / 2
+    # braked in 0.6 s: later
+    assert stop_time_s(t, travel(lambda tau: braking(tau, 0.6)), course) == pytest.approx(0.6, abs=0.07)
+    # creeping on after braking at 4 cm/s (beyond the speed's band): never at rest; at 1.5 cm/s
+    # (within it, beyond the radius over the hold): only once too little of the segment is left
+    assert stop_time_s(t, travel(lambda tau: braking(tau) + 0.04 * tau), course) is None
+    assert stop_time_s(t, travel(lambda tau: braking(tau) + 0.015 * tau), course) > 3.0 - REST_WINDOW_S / 2 - 1.0
+    # overshooting by 6 cm, then coming back over 1.5 s: at rest only once back
+    back = stop_time_s(t, travel(lambda tau: braking(tau) - 0.06 * np.clip((tau - 0.3) / 1.5, 0.0, 1.0)), course)
+    assert back == pytest.approx(1.8, abs=0.2)
     # a turn in place is no stop; no stop at all: None
-    assert stop_time_s(t, v, [(0.2, 0.0, 5.0), (0.0, 1.0, 2.0)], lim) is None
-    assert stop_time_s(t, np.zeros_like(t), [(0.0, 0.0, 7.0)], lim) is None
+    v_stop = travel(lambda tau: braking(tau))
+    assert stop_time_s(t, v_stop, [(0.2, 0.0, 5.0), (0.0, 1.0, 3.0)]) is None
+    assert stop_time_s(t, np.zeros_like(t), [(0.0, 0.0, 8.0)]) is None
 
 
 def test_the_plan_view_draws_both_paths(tmp_path):

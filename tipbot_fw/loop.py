@@ -254,13 +254,14 @@ class ControlLoop(object):
         pack_times = logfile.TIMES.pack_into
         row_bytes = log.row_bytes
         period = self.period_s
-        n_ticks = self.n_ticks
+        n_ticks = -1 if self.n_ticks is None else self.n_ticks     # an int: compares faster than None
         hbt = self.heartbeat
         beat = hbt.words if hbt.words is not None else [0] * 8   # the same store either way
         bound = (self.encoder_bound or EncoderBound(None, None, period)).with_max_step(core.max_count_step)
         j2_tick = bound.per_tick ** 2
         j2_max = float('inf')           # tick 0 has no previous reading
         gyro_max = GYRO_MAX_DPS
+        gyro_min = -gyro_max        # negated once: a negated int is a new object each time
         pa = pb = pc = pd = 0
         # the work between ticks: the side task's (every tick for a remote: here, as locals) and the
         # housekeeping's (the log's chunks, the battery, the integrators: a method), each due in its tick
@@ -277,6 +278,7 @@ class ControlLoop(object):
         hbt.publish_rail(core.dlim)
         consecutive = 0
         step = core.start
+        later = core.step       # bound once: a bound method made each tick costs it ~300 instructions
         k = 0       # ticks whose row is stored
         release = log.t0 = now()
         try:
@@ -289,14 +291,17 @@ class ControlLoop(object):
                 # the four jumps' squares against the bound's: a third cheaper than four chained
                 # comparisons; it errs only towards the exact check (bound.check)
                 a, b, c, d = enc
-                a2, b2, c2, d2 = a - pa, b - pb, c - pc, d - pd
-                if not (-gyro_max <= gyro[1] <= gyro_max and a2 * a2 + b2 * b2 + c2 * c2 + d2 * d2 <= j2_max):
+                a2 = a - pa
+                b2 = b - pb
+                c2 = c - pc
+                d2 = d - pd
+                if not (gyro_min <= gyro[1] <= gyro_max and a2 * a2 + b2 * b2 + c2 * c2 + d2 * d2 <= j2_max):
                     bound.check((pa, pb, pc, pd), enc, t - log.mem[(k - 1) % cap, 0], gyro[1], k)
                 pa, pb, pc, pd = a, b, c, d
                 beat[0] = k
                 offset = (k % cap) * row_bytes
                 duties, stop = step(enc, gyro, buf, offset)
-                step = core.step
+                step = later
                 j2_max = j2_tick
                 if stop:
                     pack_times(buf, offset, t, now())

@@ -139,7 +139,7 @@ def course_tracking(run, sc):
     dt = float(np.median(np.diff(t))) if len(t) > 1 else 0.005
     commanded = tracking.commanded_path(segments, 0.0, dt_s=dt, end_s=float(t[-1]))
     out = {k: _f(v) for k, v in tracking.tracking_metrics(true, commanded).items()}
-    out["stop_time_s"] = _f_or_none(stop_time_s(t, true["speed_mps"], sc.course, _forward_limits(sc)))
+    out["stop_time_s"] = _f_or_none(stop_time_s(t, 0.5 * (x[:, 0] + x[:, 1]), sc.course))
     return out
 
 
@@ -147,53 +147,69 @@ def _f_or_none(v):
     return None if v is None else _f(v)
 
 
-def _forward_limits(sc):
-    """(a_max, j_max) of the forward reference the firmware's plan uses (the gains' limits)."""
-    from tipbot_fw.drive.course import channel_limits
-    from tipbot_fw.gains import load_gains
-    return channel_limits(load_gains(sc.gains).kalman.reference.limits)[0]
+# A stop (issue 21: "stops from 0.2 m/s within 0.5 s"), timed from the stop command (the start
+# of a segment of zero speed and yaw rate after a moving one, or the end of the course) until the
+# robot is at rest. A balancing robot never stands still: on the realistic brick its wheels keep a
+# 2-3 Hz limit cycle (the gears' backlash, the gyro's steps) of up to 0.13 m/s at its peaks (about
+# +-1 cm of travel) around a fixed point. That is rest; creeping away, or coming back to the
+# stop's place after overshooting it, is not. So the wheels' travel (their mean distance) is
+# averaged over REST_WINDOW_S, one cycle of the limit cycle (centred: no lag), which leaves of a
+# limit cycle of 2-3 Hz at most a quarter of its amplitude in the position and 3 cm/s in the
+# speed (their change over the window); the robot is at rest from the first moment after which,
+# until the segment ends and for REST_HOLD_S at least, that mean speed stays within
+# REST_SPEED_MPS and that mean position within REST_RADIUS_M of where it was then (a creep of
+# 1 cm/s or more is not rest). A brake from 0.2 m/s at the gains' deceleration reads within a few
+# hundredths of a second of its end; a stop in no time at all (no robot) as up to half the window.
+# A stop not at rest before its segment ends reads None. (The robot's true travel: a simulated run's.)
+REST_WINDOW_S = 0.5
+REST_SPEED_MPS = 0.03
+REST_RADIUS_M = 0.01
+REST_HOLD_S = 0.5
 
 
-# A stop (issue 21: "stops from 0.2 m/s within 0.5 s"): from the moment the plan's forward
-# reference reaches zero (the command's change to zero plus its smoothstep, tipbot_fw.drive.plan)
-# until the wheels' speed, averaged over STOP_AVERAGE_S, stays within STOP_SPEED_MPS (a quarter of
-# the 0.2 m/s the issue stops from) for STOP_HOLD_S (or to the segment's end). A standing robot's
-# balancing moves its wheels too (on the realistic brick up to 0.13 m/s at a peak of its wander):
-# a stop that never settles so reads None.
-STOP_AVERAGE_S = 0.1
-STOP_SPEED_MPS = 0.05
-STOP_HOLD_S = 0.5
-
-
-def stop_time_s(t_s, speed_mps, course, forward_limits):
+def stop_time_s(t_s, travel_m, course):
     """The longest stop time (s) over the course's stops (a segment of zero speed after a moving
-    one, turning neither, and the rest after its last segment), as above; None if the course has no stop or a
-    stop never settles."""
-    from tipbot_fw.drive.course import transition_s
+    one, turning neither, and the rest after its last segment), as above, from the wheels' mean
+    travel travel_m (m) at the times t_s; None if the course has no stop or a stop does not come
+    to rest before its segment ends."""
     t = np.asarray(t_s, dtype=float)
-    v = np.asarray(speed_mps, dtype=float)
-    dt = float(np.median(np.diff(t))) if len(t) > 1 else 0.005
-    k = max(1, int(round(STOP_AVERAGE_S / dt)))
-    avg = np.convolve(v, np.ones(k) / k)[:len(v)]        # the mean over the last STOP_AVERAGE_S
+    s = np.asarray(travel_m, dtype=float)
     worst, start = None, 0.0
     previous = 0.0
     # after its last segment a course's commands are zero until the run ends (tipbot_fw.drive.plan)
     for speed, yaw, duration in list(course) + [(0.0, 0.0, max(0.0, float(t[-1]) - sum(c[2] for c in course)))]:
         end = start + duration
         if speed == 0.0 and yaw == 0.0 and previous != 0.0:
-            t_zero = start + transition_s(previous, *forward_limits)
-            band = STOP_SPEED_MPS
-            stopped = None
-            for i in np.nonzero((t >= t_zero) & (t < end))[0]:
-                hold = (t >= t[i]) & (t <= min(t[i] + STOP_HOLD_S, end))
-                if np.all(np.abs(avg[hold]) <= band):
-                    stopped = float(t[i] - t_zero)
-                    break
+            stopped = _at_rest_from(t, s, start, end)
             if stopped is None:
                 return None
-            worst = stopped if worst is None else max(worst, stopped)
+            worst = stopped - start if worst is None else max(worst, stopped - start)
         previous, start = speed, end
     return worst
+
+
+def _at_rest_from(t, s, start, end):
+    """The first time in [start, end] from which the travel s is at rest until end (the comment
+    above), or None."""
+    if len(t) < 2:
+        return None
+    h = max(1, int(round(0.5 * REST_WINDOW_S / float(np.median(np.diff(t))))))
+    # the samples of the segment whose whole window lies in the run and ends by the segment's end
+    i = np.arange(h, len(t) - h)
+    i = i[(t[i] >= start) & (t[i + h] <= end)]
+    if len(i) == 0:
+        return None
+    csum = np.concatenate([[0.0], np.cumsum(s)])
+    mean_s = (csum[i + h + 1] - csum[i - h]) / (2 * h + 1)
+    mean_v = (s[i + h] - s[i - h]) / (t[i + h] - t[i - h])
+    # from each sample on: whether the mean speed leaves its band, and the mean position's extremes
+    fast_later = np.logical_or.accumulate((np.abs(mean_v) > REST_SPEED_MPS)[::-1])[::-1]
+    hi = np.maximum.accumulate(mean_s[::-1])[::-1]
+    lo = np.minimum.accumulate(mean_s[::-1])[::-1]
+    rest = (~fast_later & (hi - mean_s <= REST_RADIUS_M) & (mean_s - lo <= REST_RADIUS_M)
+            & (t[i] <= t[i[-1]] - REST_HOLD_S))
+    found = np.nonzero(rest)[0]
+    return float(t[i[found[0]]]) if len(found) else None
 
 
 # Oscillation check: the strongest spectral line above OSC_MIN_HZ of each signal after the

@@ -261,8 +261,7 @@ class KalmanCore(Core):
         self.rshift = np.right_shift
         self._in_off = 8 * (N_U + n)
         self._ref_off = 8 * (one + 1)
-        self._row_ints = 8 * self.n_v
-        self._row_end = INTS_AT + self._row_ints
+        self._row_end = INTS_AT + len(self.v_bytes)     # the row's ints: the whole of v
         self.rows = layout or self.row_layout(gains, config)
         assert self.rows.q == self.q and self.rows.has_reference
         self.rows.ref_lsb = self.ref_lsb
@@ -336,6 +335,7 @@ class KalmanCore(Core):
                 battery_v, lo, hi))
         self.battery_v = battery_v
         self.dlim = min(100, int(round(self.u_max_v * 100.0 / battery_v)))
+        self.dlims = (self.dlim, -self.dlim)    # the tick's bounds (a negated int is a new object)
         n = self.n
         rowf = [self.polarity[i] * 100.0 / battery_v for i in range(N_U)] + [1.0] * n
         q = fx.quantize(self.law, self._col_factor(battery_v), rowf, self.row_exp)
@@ -396,8 +396,11 @@ class KalmanCore(Core):
         return self._finish(gyro[0], buf, offset)
 
     def step(self, enc, gyro, buf, offset):
-        """Every later tick: the module docstring's product, in integers."""
+        """Every later tick: the module docstring's product, in integers, then what _finish does,
+        written out here (a call costs the tick ~650 instructions, a lookup of an attribute ~30 more
+        than a local's: the brick's Python is that slow per bytecode)."""
         e0, e1, e2, e3 = enc
+        gyro_angle, gyro_rate = gyro
         z0, z1, z2, z3 = self.offsets
         r0 = e0 - z0
         r1 = e1 - z1
@@ -408,52 +411,65 @@ class KalmanCore(Core):
         d0 = r0 - p0        # within +-MAX_COUNT_STEP: the loop's plausibility check
         d1 = r1 - p1
         j2lo, j2hi, j3lo, j3hi = self.joint_bounds
+        vb = self.v_bytes
         next_row = self.next_row
         if next_row is not None:    # driving: with this tick's reference (set_live), in one call
-            _IN_REF.pack_into(self.v_bytes, self._in_off, d0, d1, r0, r1, r2, r3, gyro[1], 1, next_row())
+            _IN_REF.pack_into(vb, self._in_off, d0, d1, r0, r1, r2, r3, gyro_rate, 1, next_row())
         else:
-            _IN.pack_into(self.v_bytes, self._in_off, d0, d1, r0, r1, r2, r3, gyro[1])
+            _IN.pack_into(vb, self._in_off, d0, d1, r0, r1, r2, r3, gyro_rate)
         if not (j2lo <= r2 <= j2hi and j3lo <= r3 <= j3hi):
             # stop before the product: beyond the limits the fixed-point range is not assured
-            return self._row(JOINT_LIMIT, gyro[0], buf, offset)
-        self.dot(self.v_in, self.acc)
-        self.rshift(self.acc, self.shifts, self.v_head)
-        return self._finish(gyro[0], buf, offset)
-
-    def _finish(self, gyro_angle, buf, offset):
-        """The tick's duties (v's first four, rounded) saturated, the fall check, the row."""
-        dlim = self.dlim
-        q0, q1, q2, q3, _, _, th1 = _HEAD.unpack_from(self.v_bytes, 0)
+            return self._row(JOINT_LIMIT, gyro_angle, buf, offset)
+        acc = self.acc
+        self.dot(self.v_in, acc)
+        self.rshift(acc, self.shifts, self.v_head)
+        # _finish, written out
+        q0, q1, q2, q3, _, _, th1 = _HEAD.unpack_from(vb, 0)
+        dlim, ndlim = self.dlims
         bits = 0
         if q0 > dlim:
             q0, bits = dlim, 1
-        elif q0 < -dlim:
-            q0, bits = -dlim, 1
+        elif q0 < ndlim:
+            q0, bits = ndlim, 1
         if q1 > dlim:
             q1, bits = dlim, bits | 2
-        elif q1 < -dlim:
-            q1, bits = -dlim, bits | 2
+        elif q1 < ndlim:
+            q1, bits = ndlim, bits | 2
         if q2 > dlim:
             q2, bits = dlim, bits | 4
-        elif q2 < -dlim:
-            q2, bits = -dlim, bits | 4
+        elif q2 < ndlim:
+            q2, bits = ndlim, bits | 4
         if q3 > dlim:
             q3, bits = dlim, bits | 8
-        elif q3 < -dlim:
-            q3, bits = -dlim, bits | 8
+        elif q3 < ndlim:
+            q3, bits = ndlim, bits | 8
         if bits:
-            _DUTIES.pack_into(self.v_bytes, 0, q0, q1, q2, q3)
+            _DUTIES.pack_into(vb, 0, q0, q1, q2, q3)
         lo, hi = self.th1_bounds
         if not lo <= th1 <= hi:
             bits |= FALL
-        # the row (as _row writes it; written out here: a call costs the tick ~600 instructions)
         pack_floats(buf, offset + FLOATS_AT, self.battery_v, bits, gyro_angle)
-        buf[offset + INTS_AT:offset + self._row_end] = self.v_bytes[0:self._row_ints]
+        buf[offset + INTS_AT:offset + self._row_end] = vb
         return [q0, q1, q2, q3], bits & STOP_FLAGS
+
+    def _finish(self, gyro_angle, buf, offset):
+        """The tick's duties (v's first four, rounded) saturated, the fall check, the row: the
+        first tick's (step() does the same, written out)."""
+        q0, q1, q2, q3, _, _, th1 = _HEAD.unpack_from(self.v_bytes, 0)
+        dlim, ndlim = self.dlims
+        duties = [min(dlim, max(ndlim, q)) for q in (q0, q1, q2, q3)]
+        bits = sum(1 << i for i in range(N_U) if duties[i] != (q0, q1, q2, q3)[i])
+        if bits:
+            _DUTIES.pack_into(self.v_bytes, 0, *duties)
+        lo, hi = self.th1_bounds
+        if not lo <= th1 <= hi:
+            bits |= FALL
+        self._row(bits, gyro_angle, buf, offset)
+        return duties, bits & STOP_FLAGS
 
     def _row(self, flags, gyro_angle, buf, offset):
         pack_floats(buf, offset + FLOATS_AT, self.battery_v, flags, gyro_angle)
-        buf[offset + INTS_AT:offset + self._row_end] = self.v_bytes[0:self._row_ints]
+        buf[offset + INTS_AT:offset + self._row_end] = self.v_bytes      # the whole of v: the row's ints
         return [0, 0, 0, 0], flags & STOP_FLAGS
 
     def skip(self, periods):
