@@ -1,7 +1,7 @@
-"""The fall test and the joint swing test as on the brick: the firmware (python3 -m tipbot_fw
-fall-test / swing-test) a separate process on the real-time fake robot's files (python -m hostsim
-fake-robot; the swing with its link 1 on a stand: --stand), then the host's fits of the logs they
-wrote. Real time on a shared machine: the figures are looser than the lock-step tests'
+"""The fall test, the joint swing test and the axle swing as on the brick: the firmware (python3 -m
+tipbot_fw fall-test / swing-test) a separate process on the real-time fake robot's files (python -m
+hostsim fake-robot; the joint swing with its link 1 on a stand: --stand; the axle swing upside down,
+held by its wheels: --hang), then the host's fits of the logs they wrote. Real time on a shared machine: the figures are looser than the lock-step tests'
 (tests/test_your_robot.py)."""
 import subprocess
 import sys
@@ -17,12 +17,13 @@ from conftest import REPO
 
 
 class FakeRobot(object):
-    def __init__(self, tmp_path, scenario, stand=False):
+    def __init__(self, tmp_path, scenario, stand=False, hang=False):
         self.root, self.config = str(tmp_path / "sysfs"), str(tmp_path / "config.json")
         path = tmp_path / "scenario.json"
         path.write_text(scenario)
         cmd = [sys.executable, "-m", "hostsim", "fake-robot", "--root", self.root, "--scenario", str(path),
-               "--write-config", self.config, "--duration", "40"] + (["--stand"] if stand else [])
+               "--write-config", self.config, "--duration", "40"] + (["--stand"] if stand else []) + \
+            (["--hang"] if hang else [])
         self.proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                                      universal_newlines=True)
         self.lines, self.ready = [], threading.Event()
@@ -86,3 +87,21 @@ def test_the_swing_test_against_the_real_time_fake_robot_on_a_stand(tmp_path):
     k_v, c, jm = bodyfit.motor_constants(p, 3)
     fit = bodyfit.fit_swing(bodyfit.signals(header, rows), 3, k_v, c, p["g_m_s2"])
     assert fit["lever_kg_m"] == pytest.approx(bodies.levers(p)[2], rel=0.2)
+
+
+@pytest.mark.slow
+def test_the_axle_swing_against_the_real_time_fake_robot_hanging_from_its_wheels(tmp_path):
+    robot = FakeRobot(tmp_path, '{"name": "hang", "seed": 5}', hang=True)
+    log = str(tmp_path / "swing1.log")
+    try:
+        run = firmware(robot, "swing-test", "--joint", "1", "--log", log)
+    finally:
+        out = robot.stop()
+    assert run.returncode == 0, run.stdout + out
+    assert "swing done" in run.stdout
+    header, rows = logfile.read_log(log)
+    assert header["kind"] == "swing" and header["joint"] == 1
+    p = load_params()
+    k_v, c, jm = bodyfit.motor_constants(p, 1)
+    fit = bodyfit.fit_swing(bodyfit.signals(header, rows), 1, k_v, c, p["g_m_s2"])
+    assert fit["lever_kg_m"] == pytest.approx(bodies.levers(p)[0], rel=0.1)
