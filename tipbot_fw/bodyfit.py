@@ -40,6 +40,13 @@ of a lever's angle off). Both sides pass the same filter F(s) = w^2/(s + w)^2 (t
 state-variable filter method: s^2 F theta exactly, no differentiated counts), then linear least
 squares for I, a, tau_c, tau_0, tau_b.
 
+**The axle swing** (joint 1). The robot upside down, its wheels held, the wheel motors (their
+stators on link 1) driving it open-loop: the same equation for link 1 about the axle, I the
+robot's inertia there plus the two rotors', a = a1 = M h, the wheel motors' torque on link 1
+minus theirs on the wheels (two motors, each with its own k_v; c their sum), the angle from
+upright pi plus link 1's turn (``axle_turn``). With no reference to take instruments from, they
+come from the motion the least-squares fit's model predicts from the duties (``_simulate_swing``).
+
 Standard errors: the regression's, inflated by the square root of the samples per
 ``CORRELATION_S`` (the integrated or filtered residuals are correlated over about that long).
 """
@@ -322,7 +329,7 @@ def _filter(x, t, hz):
 
 
 def fit_swing(sig, joint, k_v, c, g_m_s2, lever3=None):
-    """The swing's fit of ``joint`` (2 or 3) (module docstring) -> dict: inertia I (rotor
+    """The swing's fit of ``joint`` (2 or 3; 1: the axle swing) (module docstring) -> dict: inertia I (rotor
     included; it may come out at or below the rotor's where friction hides it: the caller drops
     it then), lever a, Coulomb friction, the constant, the backlash's share, their standard
     errors, the residual rms, the swing's amplitude.
@@ -348,7 +355,8 @@ def fit_swing(sig, joint, k_v, c, g_m_s2, lever3=None):
         raise FitError('too few ticks to fit the swing: {}'.format(len(t)))
     span = float(np.max(theta) - np.min(theta))
     if span < 0.1:
-        raise FitError('joint {} hardly moved ({:.3f} rad): was its link free to swing?'.format(joint, span))
+        raise FitError('joint {} hardly moved ({:.3f} rad): was its link free to swing{}?'.format(
+            joint, span, ' (the robot hanging from its held wheels)' if joint == 1 else ''))
     hz = SWING_FILTER_HZ
     # ticks where the count stood still over the sign's window: the motor may be stuck, its friction
     # anything up to its break-away, which no regressor describes; they are left out

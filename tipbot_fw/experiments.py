@@ -1,12 +1,14 @@
-"""The owner's experiments on the robot (issue 24): the fall test and the joint swing test.
+"""The owner's experiments on the robot (issue 24): the fall test, the joint swing test and the
+axle swing.
 
     python3 -m tipbot_fw fall-test [--log FILE] [--config FILE]
     python3 -m tipbot_fw swing-test --joint 1|2|3 [--log FILE] [--config FILE]
 
 (under the supervisor, as the launcher runs a balance: ``python3 -m tipbot_fw.supervisor --
-fall-test --config config.json``). Both are short (a few seconds), drive only the joint motors,
-within their duty limit and the configuration's joint limits, and write a log of the raw
-readings and the duties (``kind`` ``fall`` or ``swing``; docs/log-format.md, "Experiment
+fall-test --config config.json``). All are short (the fall a few seconds, a joint swing 16 s, the
+axle swing 23 s), drive only the joint motors (the axle swing the wheel motors too, open-loop),
+within their duty limit and the configuration's joint limits, and write a log of the raw readings
+and the duties (``kind`` ``fall`` or ``swing``; docs/log-format.md, "Experiment
 logs") that the host fits (``python -m hostsim fit-robot``) and the pre-flight check reads
 (``python3 -m tipbot_fw check --gains FILE --fall-log LOG``; tipbot_fw.preflight).
 
@@ -32,9 +34,9 @@ must not turn: a firm grip, or the tyres clamped), joints straight, the links ha
 axle; the gyro is calibrated while it hangs still. Hanging, gravity holds the robot, so the wheel
 motors (their stators on link 1) drive it open-loop: a duty that leans it (``AXLE_SWING``: 50 %,
 ramped in and out over ``SETTLE_S``) plus whole sine cycles (0.2, 0.5, 1.0 and 1.6 Hz, 21 s: below,
-about and above the hanging robot's own swing, 0.9-1.5 Hz), never crossing zero, so that the wheel gears stay on one side
-of their 3 deg of free play and the wheel encoders (the wheels held: minus link 1's angle) read
-link 1's turn. The joints are held straight by their PD. Beyond 0.7 rad from hanging straight
+about and above the hanging robot's own swing, 0.9-1.5 Hz), never crossing zero, so that the wheel
+gears stay on one side of their 3 deg of free play and the wheel encoders (the wheels held: minus
+link 1's angle) read link 1's turn. The joints are held straight by their PD. Beyond 0.7 rad from hanging straight
 down it stops (exit 6). The host fits the robot's lever about the axle a1 = M h and its inertia
 there (with the two wheel motors' model): the one lever the fall (a ratio) and the joint swings do
 not give. At 8 V the two Large motors give 0.47 N m at full duty: the lean peaks at 0.1 rad for a
@@ -91,8 +93,7 @@ RATE_TICKS = 4
 # lever 15 % too large). Joint 3 leans less: with it the joint-2 motor must hold links 2 and 3 (a
 # doubled link 3 leaning 0.3 rad took more than its 0.28 N m).
 SWING = {2: (0.15, ((0.3, 0.10, 2), (0.7, 0.08, 3), (1.2, 0.05, 4))),
-         3: (0.12, ((0.3, 0.10, 2), (0.7, 0.08, 3), (1.2, 0.05, 4))),
-}
+         3: (0.12, ((0.3, 0.10, 2), (0.7, 0.08, 3), (1.2, 0.05, 4)))}
 # The axle swing's wheel duty (percent, both motors, model direction): a lean, then sine cycles
 # (Hz, amplitude %, cycles) about it, smaller where the hanging robot swings by itself (about
 # 1.2 Hz for the paper's robot); lean minus amplitude stays above 0 (the gears on one side of their
