@@ -1,7 +1,7 @@
-"""The fall test and the joint swing test as on the brick: the firmware (python3 -m tipbot_fw
-fall-test / swing-test) a separate process on the real-time fake robot's files (python -m hostsim
-fake-robot; the swing with its link 1 on a stand: --stand), then the host's fits of the logs they
-wrote. Real time on a shared machine: the figures are looser than the lock-step tests'
+"""The fall test, the joint swing test and the axle swing as on the brick: the firmware (python3 -m
+tipbot_fw fall-test / swing-test) a separate process on the real-time fake robot's files (python -m
+hostsim fake-robot; the joint swing with its link 1 on a stand: --stand; the axle swing upside down,
+held by its wheels: --hang), then the host's fits of the logs they wrote. Real time on a shared machine: the figures are looser than the lock-step tests'
 (tests/test_your_robot.py)."""
 import subprocess
 import sys
@@ -17,12 +17,13 @@ from conftest import REPO
 
 
 class FakeRobot(object):
-    def __init__(self, tmp_path, scenario, stand=False):
+    def __init__(self, tmp_path, scenario, stand=False, hang=False):
         self.root, self.config = str(tmp_path / "sysfs"), str(tmp_path / "config.json")
         path = tmp_path / "scenario.json"
         path.write_text(scenario)
         cmd = [sys.executable, "-m", "hostsim", "fake-robot", "--root", self.root, "--scenario", str(path),
-               "--write-config", self.config, "--duration", "40"] + (["--stand"] if stand else [])
+               "--write-config", self.config, "--duration", "40"] + (["--stand"] if stand else []) + \
+            (["--hang"] if hang else [])
         self.proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                                      universal_newlines=True)
         self.lines, self.ready = [], threading.Event()
@@ -71,18 +72,22 @@ def test_the_fall_test_against_the_real_time_fake_robot(tmp_path):
 
 
 @pytest.mark.slow
-def test_the_swing_test_against_the_real_time_fake_robot_on_a_stand(tmp_path):
-    robot = FakeRobot(tmp_path, '{"name": "stand", "seed": 4}', stand=True)
-    log = str(tmp_path / "swing3.log")
+@pytest.mark.parametrize("joint, holding, rel, seed", [(3, {"stand": True}, 0.2, 4), (1, {"hang": True}, 0.1, 5)],
+                         ids=["joint 3 on a stand", "the axle, hanging from its wheels"])
+def test_the_swing_tests_against_the_real_time_fake_robot(tmp_path, joint, holding, rel, seed):
+    """The joint-3 swing with link 1 on a stand, the axle swing upside down held by the wheels: the
+    swung lever (a3; a1 = M h) within rel of the paper robot's."""
+    robot = FakeRobot(tmp_path, '{"name": "swing", "seed": %d}' % seed, **holding)
+    log = str(tmp_path / ("swing%d.log" % joint))
     try:
-        run = firmware(robot, "swing-test", "--joint", "3", "--log", log)
+        run = firmware(robot, "swing-test", "--joint", str(joint), "--log", log)
     finally:
         out = robot.stop()
     assert run.returncode == 0, run.stdout + out
     assert "swing done" in run.stdout
     header, rows = logfile.read_log(log)
-    assert header["kind"] == "swing" and header["joint"] == 3
+    assert header["kind"] == "swing" and header["joint"] == joint
     p = load_params()
-    k_v, c, jm = bodyfit.motor_constants(p, 3)
-    fit = bodyfit.fit_swing(bodyfit.signals(header, rows), 3, k_v, c, p["g_m_s2"])
-    assert fit["lever_kg_m"] == pytest.approx(bodies.levers(p)[2], rel=0.2)
+    k_v, c, jm = bodyfit.motor_constants(p, joint)
+    fit = bodyfit.fit_swing(bodyfit.signals(header, rows), joint, k_v, c, p["g_m_s2"])
+    assert fit["lever_kg_m"] == pytest.approx(bodies.levers(p)[joint - 1], rel=rel)

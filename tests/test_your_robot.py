@@ -15,7 +15,8 @@ from hostsim.model.params import load_params, parse_params, scaled_params
 from hostsim.model.spread import spread_from_doc
 from hostsim.sim.experiment_sim import simulate_experiment
 from tipbot_fw import bodyfit, preflight
-from tipbot_fw.experiments import JOINT_KD, JOINT_KP, swing_reference
+from tipbot_fw.experiments import AXLE_SWING, JOINT_KD, JOINT_KP, axle_duty, swing_duration_s, swing_reference
+from tipbot_fw.record import logfile
 from tipbot_fw.gains import GainsError, gains_from_dict, load_gains
 from conftest import PHYSICAL_GAINS, REPO
 
@@ -139,6 +140,60 @@ def test_the_swing_fit_finds_lever_and_inertia_of_a_known_joint():
     assert fit["lever_kg_m"] == pytest.approx(lever, rel=0.03)
     assert fit["inertia_kg_m2"] == pytest.approx(inertia, rel=0.10)
     assert fit["coulomb_nm"] > 0
+
+
+def test_the_fall_fit_finds_where_the_wheels_broke_away():
+    """The wheels held by their motors' friction until 0.5 s, then rolling back, read in whole
+    degrees: the start of their motion within two ticks, their acceleration within 10 %."""
+    t = np.arange(0.0, 1.0, 0.005)
+    s = np.maximum(t - 0.5, 0.0)
+    psi = -(3.0 * s ** 2 + 8.0 * s ** 3)
+    poly, start = bodyfit.wheel_motion(t, np.trunc(np.degrees(psi)) * math.pi / 180)
+    assert start == pytest.approx(0.5, abs=0.011)
+    acc = np.polyval(np.polyder(np.polyder(poly)), t[-1] - start)
+    assert acc == pytest.approx(-(6.0 + 48.0 * (t[-1] - 0.5)), rel=0.10)
+
+
+def test_the_axle_swing_duty_leans_one_way_within_the_motors_range():
+    """The wheel gears stay on one side of their play: the duty is never negative, within 100 %,
+    ramped in from 0 and back to 0, and the swing ends."""
+    lean, segments = AXLE_SWING
+    assert all(lean - amp > 0 and lean + amp <= 100 for _, amp, _ in segments)
+    times = np.arange(0.0, swing_duration_s(1), 0.005)
+    duties = [axle_duty(x) for x in times]
+    assert duties[0] == 0 and None not in duties
+    assert min(duties) >= 0 and max(duties) <= 100
+    assert axle_duty(swing_duration_s(1) + 0.01) is None
+
+
+def test_the_axle_turn_takes_the_hands_give_from_the_gyro():
+    """Link 1 swung by a torque, the wheels giving torque / K in the hands holding them: the
+    encoders read the turn less the give, the gyro the turn in whole degrees with a drifting bias;
+    axle_turn recovers the turn within half a degree."""
+    t = np.arange(0.0, 20.0, 0.005)
+    torque = 0.25 + 0.2 * np.sin(2 * math.pi * 0.4 * t)
+    turn = 0.3 * torque + 0.03 * np.sin(2 * math.pi * 1.3 * t)
+    give = torque / 8.0
+    gyro = np.round(np.degrees(turn + 0.01 * t + 0.0004 * t ** 2)) * math.pi / 180
+    sig = {"t": t, "psi": -np.round(np.degrees(turn - give) * 2) / 2 * math.pi / 180, "tilt": gyro}
+    assert np.max(np.abs(bodyfit.axle_turn(sig, torque) - turn)) < math.radians(0.5)
+
+
+def test_the_axle_swing_of_a_simulated_heavy_robot_gives_its_lever_about_the_axle(tmp_path):
+    """The firmware's axle swing, lock-step on the realistic brick (the wheel motors' friction and
+    3-degree play, the hands' give, the gyro's drift and whole degrees), of a robot whose links
+    are 30 % heavier and link 1 20 % longer than the paper's: the fit finds a1 = M h within 6 %,
+    the inertia about the axle within 20 %."""
+    true = scaled_params({"m1_kg": 1.3, "m2_kg": 1.3, "m3_kg": 1.3, "l1_m": 1.2, "j1_kg_m2": 1.5}, load_params())
+    path = str(tmp_path / "swing1.log")
+    code, header, _ = simulate_experiment("swing", true, path, joint=1)
+    assert code == 0, header["stop_message"]
+    k_v, c, jm = bodyfit.motor_constants(true, 1)
+    h, rows = logfile.read_log(path)
+    fit = bodyfit.fit_swing(bodyfit.signals(h, rows), 1, k_v, c, true["g_m_s2"])
+    assert fit["lever_kg_m"] == pytest.approx(bodies.levers(true)[0], rel=0.06)
+    assert fit["inertia_kg_m2"] - jm == pytest.approx(bodies.joint_inertias(true)[0], rel=0.20)
+    assert fit["lever_se"] < 0.1 * fit["lever_kg_m"]
 
 
 # ---------------------------------------------------------------------------- the experiments, simulated

@@ -40,6 +40,13 @@ of a lever's angle off). Both sides pass the same filter F(s) = w^2/(s + w)^2 (t
 state-variable filter method: s^2 F theta exactly, no differentiated counts), then linear least
 squares for I, a, tau_c, tau_0, tau_b.
 
+**The axle swing** (joint 1). The robot upside down, its wheels held, the wheel motors (their
+stators on link 1) driving it open-loop: the same equation for link 1 about the axle, I the
+robot's inertia there plus the two rotors', a = a1 = M h, the wheel motors' torque on link 1
+minus theirs on the wheels (two motors, each with its own k_v; c their sum), the angle from
+upright pi plus link 1's turn (``axle_turn``). With no reference to take instruments from, they
+come from the motion the least-squares fit's model predicts from the duties (``_simulate_swing``).
+
 Standard errors: the regression's, inflated by the square root of the samples per
 ``CORRELATION_S`` (the integrated or filtered residuals are correlated over about that long).
 """
@@ -98,7 +105,9 @@ def signals(header, rows):
     bv = col('battery_v') / 100.0
     u2 = pol['joint2'] * col('duty_2') * bv
     u3 = pol['joint3'] * col('duty_3') * bv
-    return dict(t=t, psi=0.5 * (enc_r + enc_l), th2=th2, th3=th3, tilt=tilt, rate=rate, u2=u2, u3=u3,
+    ur = pol['right_wheel'] * col('duty_r') * bv
+    ul = pol['left_wheel'] * col('duty_l') * bv
+    return dict(t=t, psi=0.5 * (enc_r + enc_l), th2=th2, th3=th3, tilt=tilt, rate=rate, u2=u2, u3=u3, ur=ur, ul=ul,
                 ref=col('ref_rad'))
 
 
@@ -154,12 +163,19 @@ def fall_window(sig):
     return i0, i1
 
 
-def simulate_fall(t, t_r, th_r, ratio, e, rw, g, psi_poly):
+def simulate_fall(t, t_r, th_r, ratio, e, rw, g, psi_poly, psi_start=None):
     """The tilt at the times t of a rigid robot let go at rest at t_r from th_r (held before):
     th'' (ratio - 2 rw (1 - cos th)) = g sin th + rw sin th th'^2 - (e + rw cos th) psi'' (module
-    docstring, divided by Mh; ratio = I_roll / Mh, psi'' of the polynomial psi_poly), RK4 in
-    steps of FALL_STEP_S. -> (tilts, rates)."""
+    docstring, divided by Mh; ratio = I_roll / Mh, psi'' of the polynomial psi_poly in t, or, with
+    psi_start, 0 before psi_start and of psi_poly in t - psi_start after), RK4 in steps of
+    FALL_STEP_S. -> (tilts, rates)."""
     dpoly = np.polyder(np.polyder(psi_poly)) if len(psi_poly) > 2 else np.zeros(1)
+    if psi_start is not None:
+        def psi_acc(tt):
+            return float(np.polyval(dpoly, tt - psi_start)) if tt >= psi_start else 0.0
+    else:
+        def psi_acc(tt):
+            return float(np.polyval(dpoly, tt))
     out = np.full(len(t), float(th_r))
     rates = np.zeros(len(t))
     th, w = float(th_r), 0.0
@@ -168,7 +184,7 @@ def simulate_fall(t, t_r, th_r, ratio, e, rw, g, psi_poly):
     def acc(tt, x, v):
         c = math.cos(x)
         sn = math.sin(x)
-        return (g * sn + rw * sn * v * v - (e + rw * c) * float(np.polyval(dpoly, tt))) / (ratio - 2 * rw * (1 - c))
+        return (g * sn + rw * sn * v * v - (e + rw * c) * psi_acc(tt)) / (ratio - 2 * rw * (1 - c))
     for k in range(len(t)):
         while t_now < t[k] - 1e-12:
             h = min(FALL_STEP_S, t[k] - t_now)
@@ -195,6 +211,39 @@ RELEASE_SEARCH_S = 0.4
 FALL_ITERATIONS = 25
 
 
+# How far before its first count the wheels' motion may have started (searched in ticks)
+WHEEL_START_SEARCH_S = 0.15
+
+
+def wheel_motion(t, psi):
+    """The wheels' angle relative to link 1 in the fall, for the tilt's psi'' term -> (polynomial in
+    t - start, start): still until ``start`` (the wheel motors' friction holds them until the
+    tilt's pull on them overcomes it), then c2 (t - start)^2 + c3 (t - start)^3, least squares over
+    the counts (half a count ahead once moved), start searched tick by tick up to
+    WHEEL_START_SEARCH_S before the first count."""
+    moved = np.nonzero(psi != psi[0])[0]
+    if len(moved) < 4:
+        return np.zeros(1), None
+    # a count read is up to a count behind the angle it counts (whole counts): half a count ahead
+    # is the angle's best guess once it has moved
+    steps = np.abs(np.diff(psi))
+    y = psi - psi[0]
+    y = y + 0.5 * float(np.min(steps[steps > 0])) * np.sign(y)
+    t_first = float(t[moved[0]])
+    dt = float(np.median(np.diff(t)))
+    best = None
+    for k in range(int(WHEEL_START_SEARCH_S / dt) + 1):
+        start = t_first - k * dt
+        s = np.maximum(t - start, 0.0)
+        x = np.column_stack([s ** 2, s ** 3])
+        coef = np.linalg.lstsq(x, y, rcond=-1)[0]
+        r = y - x.dot(coef)
+        cost = float(r.dot(r))
+        if best is None or cost < best[0]:
+            best = (cost, np.array([coef[1], coef[0], 0.0, 0.0]), start)
+    return best[1], best[2]
+
+
 def fit_fall(sig, rw_m, g_m_s2, a_over_mh):
     """The fall's fit (module docstring) -> dict: the ratio I_roll / Mh (m), the fall pole (1/s)
     and its relative standard error, the release, the tilt there, the window, the joints' largest
@@ -210,13 +259,11 @@ def fit_fall(sig, rw_m, g_m_s2, a_over_mh):
     i_first = max(0, int(np.searchsorted(t, t[i_moved] - RELEASE_SEARCH_S)))
     t, th_m = t[i_first:], th_m[i_first:]
     rate_m = sig['rate'][i_first:i1 + 1]
-    psi = sig['psi'][i_first:i1 + 1]
-    late = t >= t[0] + (t[i_moved - i_first] - t[0]) * 0.5
-    psi_poly = np.polyfit(t[late] - t[0], psi[late], 3) if late.sum() > 8 else np.zeros(1)
+    psi_poly, psi_start = wheel_motion(t - t[0], sig['psi'][i_first:i1 + 1])
 
     def model(x):
         ratio, t_r, th_r, b = math.exp(x[0]), x[1], x[2], x[3]
-        th, w = simulate_fall(t - t[0], t_r, th_r, ratio, a_over_mh, rw_m, g_m_s2, psi_poly)
+        th, w = simulate_fall(t - t[0], t_r, th_r, ratio, a_over_mh, rw_m, g_m_s2, psi_poly, psi_start)
         return np.concatenate([th - (th_r - th_m[0]) - b * (t - t[0]), (w - b) * RATE_WEIGHT])
     th_m = np.concatenate([th_m, rate_m * RATE_WEIGHT])
 
@@ -282,35 +329,59 @@ def _filter(x, t, hz):
 
 
 def fit_swing(sig, joint, k_v, c, g_m_s2, lever3=None):
-    """The swing's fit of ``joint`` (2 or 3) (module docstring) -> dict: inertia I (rotor
+    """The swing's fit of ``joint`` (2 or 3; 1: the axle swing) (module docstring) -> dict: inertia I (rotor
     included; it may come out at or below the rotor's where friction hides it: the caller drops
     it then), lever a, Coulomb friction, the constant, the backlash's share, their standard
-    errors, the residual rms, the swing's amplitude."""
+    errors, the residual rms, the swing's amplitude.
+
+    Joint 1 is the axle swing (the robot hanging from its held wheels, tipbot_fw.experiments):
+    k_v a pair (the wheel motors'), c their sum, the wheel motors' torque on link 1 minus theirs
+    on the wheels. Link 1's turn: ``axle_turn`` (the wheel encoders', corrected by the gyro for the
+    hands' give), its angle from upright pi plus that; the motors' own motion (their friction's
+    sign, their back-EMF) the wheel encoders'."""
     t = sig['t']
-    theta = sig['th%d' % joint]
-    u = sig['u%d' % joint]
-    # link 1 is held: its tilt is a constant (tau_0 takes it), not the gyro's drifting integral
-    absolute = sig['th2'] + sig['th3'] if joint == 3 else sig['th2'] + sig['th3'][0]
+    if joint == 1:
+        motion = -sig['psi']
+        u = -(k_v[0] * sig['ur'] + k_v[1] * sig['ul'])
+        theta = axle_turn(sig, -u)
+        k_v = 1.0
+        absolute = math.pi + theta
+    else:
+        theta = motion = sig['th%d' % joint]
+        u = sig['u%d' % joint]
+        # link 1 is held: its tilt is a constant (tau_0 takes it), not the gyro's drifting integral
+        absolute = sig['th2'] + sig['th3'] if joint == 3 else sig['th2'] + sig['th3'][0]
     if len(t) < 200:
         raise FitError('too few ticks to fit the swing: {}'.format(len(t)))
     span = float(np.max(theta) - np.min(theta))
     if span < 0.1:
-        raise FitError('joint {} hardly moved ({:.3f} rad): was its link free to swing?'.format(joint, span))
+        raise FitError('joint {} hardly moved ({:.3f} rad): was its link free to swing{}?'.format(
+            joint, span, ' (the robot hanging from its held wheels)' if joint == 1 else ''))
     hz = SWING_FILTER_HZ
     # ticks where the count stood still over the sign's window: the motor may be stuck, its friction
     # anything up to its break-away, which no regressor describes; they are left out
-    moving = np.abs(_central_rate(theta, t)) > 0.0
+    moving = np.abs(_central_rate(motion, t)) > 0.0
     keep = (t - t[0] >= SWING_SKIP_S) & moving
     f_th, sf_th, ssf_th = _filter(theta, t, hz)
+    sf_motion = _filter(motion, t, hz)[1]
     regressors = np.column_stack([ssf_th, -g_m_s2 * _filter(np.sin(absolute), t, hz)[0],
-                                  _filter(np.sign(_central_rate(theta, t)), t, hz)[0],
+                                  _filter(np.sign(_central_rate(motion, t)), t, hz)[0],
                                   _filter(np.ones(len(t)), t, hz)[0]])[keep]
     # instruments: the same regressors of the reference, which the encoder's counts do not blur (the
     # counts' steps in s^2 F theta would bias the inertia towards zero: errors in the variables)
-    ref = sig['ref'] + (absolute - theta)      # the link's reference angle from link 1
-    f_r, sf_r, ssf_r = _filter(sig['ref'], t, hz)
-    instruments = np.column_stack([ssf_r, -g_m_s2 * _filter(np.sin(ref), t, hz)[0],
-                                   _filter(np.sign(sf_r), t, hz)[0], _filter(np.ones(len(t)), t, hz)[0]])[keep]
+
+    def instruments_of(reference):
+        ref = reference + (absolute - theta)      # the link's reference angle from link 1
+        f_r, sf_r, ssf_r = _filter(reference, t, hz)
+        return np.column_stack([ssf_r, -g_m_s2 * _filter(np.sin(ref), t, hz)[0],
+                                _filter(np.sign(sf_r), t, hz)[0], _filter(np.ones(len(t)), t, hz)[0]])[keep]
+    if joint == 1:
+        # driven open-loop, no reference: the motion the least-squares fit's model predicts from the
+        # duties (the same equation, simulated) is the instruments' source
+        coef = _iv(regressors, regressors, (k_v * _filter(u, t, hz)[0] - c * sf_motion)[keep], t[keep])[0]
+        instruments = instruments_of(_simulate_swing(t, u, coef, c, g_m_s2, absolute[0] - theta[0]))
+    else:
+        instruments = instruments_of(sig['ref'])
     bend = 0.0
     if joint == 2 and lever3 is not None:
         # link 3 is held by a PD, not rigidly: the gravity torque of its bend, from its lever
@@ -318,7 +389,7 @@ def fit_swing(sig, joint, k_v, c, g_m_s2, lever3=None):
     best = None
     for delay in DELAYS_S:     # where the duties act: a tick's writes land, and hold, after its read
         u_d = np.interp(t - delay, t, u)
-        y = (k_v * _filter(u_d, t, hz)[0] - c * sf_th + bend)[keep]
+        y = (k_v * _filter(u_d, t, hz)[0] - c * sf_motion + bend)[keep]
         coef, se, rms = _iv(regressors, instruments, y, t[keep])
         if best is None or rms < best[2]:
             best = (coef, se, rms, delay)
@@ -331,9 +402,50 @@ def fit_swing(sig, joint, k_v, c, g_m_s2, lever3=None):
             'lever_se': float(se[1]), 'coulomb_nm': float(coef[2]), 'offset_nm': float(coef[3]), 'rms_nm': rms, 'span_rad': span}
 
 
+def axle_turn(sig, torque):
+    """Link 1's turn in the axle swing (rad, from where it hung): the wheel encoders' (minus the
+    wheels' mean angle relative to link 1) plus what the wheels themselves turned in the hands
+    and tyres holding them, torque / K (torque: the wheel motors' on the wheels, N m). K comes from
+    the gyro: its angle less the encoders' is torque / K, the gear play's side (the torque never
+    changes sign: a constant), the motors' friction (its sign) and the gyro's drift (a line and a
+    parabola in time), fitted by least squares. The encoders have no drift and twice the gyro's
+    resolution (two of them); the gyro alone reads a1 with 20 % standard errors on heavy robots."""
+    t = sig['t'] - sig['t'][0]
+    enc = -sig['psi']
+    gap = (sig['tilt'] - sig['tilt'][0]) - enc
+    x = np.column_stack([torque, np.sign(_central_rate(enc, sig['t'])), np.ones(len(t)), t, t * t])
+    coef = np.linalg.lstsq(x, gap, rcond=-1)[0]
+    return enc + coef[0] * torque + coef[1] * x[:, 1]
+
+
+def _simulate_swing(t, u, coef, c, g_m_s2, offset):
+    """The swing's equation (module docstring; coef = I, a, tau_c, tau_0; u the torque of the
+    volts) from rest at angle 0 (offset: the link's angle from upright there): -> the angles at t."""
+    inertia, lever, coulomb, const = [float(v) for v in coef]
+    inertia = max(inertia, 1e-6)
+    out = np.zeros(len(t))
+    x, v = 0.0, 0.0
+    for k in range(1, len(t)):
+        h = float(t[k] - t[k - 1]) / 5
+        for _ in range(5):
+            friction = coulomb if v > 0 else (-coulomb if v < 0 else 0.0)
+            v += h * (float(u[k - 1]) - c * v + g_m_s2 * lever * math.sin(offset + x) - friction - const) / inertia
+            x += h * v
+        out[k] = x
+    return out
+
+
 def motor_constants(params, joint):
-    """(k_v = Km/Ra, c = Km Ke/Ra + beta, Jm) of a joint's motor from a parameters dict."""
-    role = 'joint%d' % joint
+    """(k_v = Km/Ra, c = Km Ke/Ra + beta, Jm) of a joint's motor from a parameters dict; joint 1:
+    the wheel motors' (k_v of each, c and Jm summed: the axle swing)."""
+    if joint == 1:
+        both = [motor_constants_of(params, r) for r in ('right_wheel', 'left_wheel')]
+        return (both[0][0], both[1][0]), both[0][1] + both[1][1], both[0][2] + both[1][2]
+    return motor_constants_of(params, 'joint%d' % joint)
+
+
+def motor_constants_of(params, role):
+    """(k_v, c, Jm) of the motor of ``role``."""
     km, ke, ra = params[role + '_km_nm_a'], params[role + '_ke_v_s'], params[role + '_ra_ohm']
     return km / ra, km * ke / ra + params[role + '_beta_nm_s'], params[role + '_jm_kg_m2']
 

@@ -1,12 +1,14 @@
-"""The owner's experiments on the robot (issue 24): the fall test and the joint swing test.
+"""The owner's experiments on the robot (issue 24): the fall test, the joint swing test and the
+axle swing.
 
     python3 -m tipbot_fw fall-test [--log FILE] [--config FILE]
-    python3 -m tipbot_fw swing-test --joint 2|3 [--log FILE] [--config FILE]
+    python3 -m tipbot_fw swing-test --joint 1|2|3 [--log FILE] [--config FILE]
 
 (under the supervisor, as the launcher runs a balance: ``python3 -m tipbot_fw.supervisor --
-fall-test --config config.json``). Both are short (a few seconds), drive only the joint motors,
-within their duty limit and the configuration's joint limits, and write a log of the raw
-readings and the duties (``kind`` ``fall`` or ``swing``; docs/log-format.md, "Experiment
+fall-test --config config.json``). All are short (the fall a few seconds, a joint swing 16 s, the
+axle swing 23 s), drive only the joint motors (the axle swing the wheel motors too, open-loop),
+within their duty limit and the configuration's joint limits, and write a log of the raw readings
+and the duties (``kind`` ``fall`` or ``swing``; docs/log-format.md, "Experiment
 logs") that the host fits (``python -m hostsim fit-robot``) and the pre-flight check reads
 (``python3 -m tipbot_fw check --gains FILE --fall-log LOG``; tipbot_fw.preflight).
 
@@ -26,6 +28,19 @@ rad, the same on joint 3), then back; 0.35 rad off its reference or beyond 0.7 r
 motor could not hold the link); the gyro watches link 1 (a turn faster than 30 deg/s for three
 ticks stops the test: link 1 was not held). The host fits the joint's equation of motion with the
 motor's parameters: its lever (gravity torque) and inertia.
+
+**The axle swing** (``--joint 1``). The owner holds the robot upside down by its two wheels (they
+must not turn: a firm grip, or the tyres clamped), joints straight, the links hanging below the
+axle; the gyro is calibrated while it hangs still. Hanging, gravity holds the robot, so the wheel
+motors (their stators on link 1) drive it open-loop: a duty that leans it (``AXLE_SWING``: 50 %,
+ramped in and out over ``SETTLE_S``) plus whole sine cycles (0.2, 0.5, 1.0 and 1.6 Hz, 21 s: below,
+about and above the hanging robot's own swing, 0.9-1.5 Hz), never crossing zero, so that the wheel
+gears stay on one side of their 3 deg of free play and the wheel encoders (the wheels held: minus
+link 1's angle) read link 1's turn. The joints are held straight by their PD. Beyond 0.7 rad from hanging straight
+down it stops (exit 6). The host fits the robot's lever about the axle a1 = M h and its inertia
+there (with the two wheel motors' model): the one lever the fall (a ratio) and the joint swings do
+not give. At 8 V the two Large motors give 0.47 N m at full duty: the lean peaks at 0.1 rad for a
+robot of twice the paper's lever, at 0.3 rad for half of it.
 
 Safety as in every command that drives motors (tipbot_fw.guard.safety.run_guarded): signals become
 exceptions, whatever ends the test the motors are stopped first, then the log is written. A joint
@@ -79,6 +94,12 @@ RATE_TICKS = 4
 # doubled link 3 leaning 0.3 rad took more than its 0.28 N m).
 SWING = {2: (0.15, ((0.3, 0.10, 2), (0.7, 0.08, 3), (1.2, 0.05, 4))),
          3: (0.12, ((0.3, 0.10, 2), (0.7, 0.08, 3), (1.2, 0.05, 4)))}
+# The axle swing's wheel duty (percent, both motors, model direction): a lean, then sine cycles
+# (Hz, amplitude %, cycles) about it, smaller where the hanging robot swings by itself (about
+# 1.2 Hz for the paper's robot); lean minus amplitude stays above 0 (the gears on one side of their
+# play), lean plus amplitude within 100 %. The low frequencies give the lever (gravity's torque
+# against the motors'), the high ones the inertia.
+AXLE_SWING = (50.0, ((0.2, 45.0, 2), (0.5, 35.0, 3), (1.0, 20.0, 3), (1.6, 20.0, 4)))
 # Beyond this the swung link has got away (a joint-2 motor holds the paper's links 2 and 3 only to
 # about 0.45 rad: 0.28 N m at 8 V against 0.62 N m x sin(angle)): stop before it falls further
 SWING_LIMIT_RAD = 0.7
@@ -126,7 +147,33 @@ def swing_reference(t, joint):
 
 
 def swing_duration_s(joint):
-    return 3 * SETTLE_S + sum(c / hz for hz, _, c in SWING[joint][1])
+    segments = AXLE_SWING[1] if joint == 1 else SWING[joint][1]
+    return 3 * SETTLE_S + sum(c / hz for hz, _, c in segments)
+
+
+def axle_duty(t):
+    """The axle swing's wheel duty (percent, model direction, not rounded) at t seconds after its
+    start; None after its end."""
+    lean, segments = AXLE_SWING
+    if t < SETTLE_S:
+        return lean * _smoothstep(t / SETTLE_S)[0]
+    t -= SETTLE_S
+    for hz, amp, cycles in segments:
+        span = cycles / hz
+        if t < span:
+            return lean + amp * math.sin(2.0 * math.pi * hz * t)
+        t -= span
+    if t < SETTLE_S:
+        return lean * _smoothstep(1.0 - t / SETTLE_S)[0]
+    return 0.0 if t < 2 * SETTLE_S else None
+
+
+def axle_angle(config, counts_per_rot, zero_counts, enc):
+    """Link 1's turn (rad, from where it hung at the start) from the wheel encoders' raw counts: the
+    wheels held, minus their mean angle relative to link 1."""
+    pol = config['polarity']
+    return -0.5 * sum(pol[role] * 2.0 * math.pi / counts_per_rot[i] * (enc[i] - zero_counts[i])
+                      for i, role in ((0, 'right_wheel'), (1, 'left_wheel')))
 
 
 class Joints(object):
@@ -137,6 +184,7 @@ class Joints(object):
         self.k = (pol['joint2'] * 2.0 * math.pi / counts_per_rot[2], pol['joint3'] * 2.0 * math.pi / counts_per_rot[3])
         self.sign = (pol['joint2'], pol['joint3'])
         self.zero = (zero_counts[2], zero_counts[3])
+        self.zero_counts = tuple(zero_counts)
         self.limits = (config['limits']['th2_rad'], config['limits']['th3_rad'])
         pose = config['start_pose_rad']
         self.pose = (pose['th2'], pose['th3'])
@@ -192,6 +240,8 @@ def run_experiment(kind, devices, clock, config, joint=None, log_path=None, say=
     }
     if kind == 'fall':
         header.update(stop_deg=stop_deg, timeout_s=timeout_s)
+    elif joint == 1:
+        header.update(axle_lean_pct=AXLE_SWING[0], axle_segments=[list(s) for s in AXLE_SWING[1]], settle_s=SETTLE_S)
     else:
         header.update(hold_rate_dps=HOLD_RATE_DPS, swing_centre_rad=SWING[joint][0],
                       swing_segments=[list(s) for s in SWING[joint][1]], settle_s=SETTLE_S)
@@ -209,6 +259,10 @@ def run_experiment(kind, devices, clock, config, joint=None, log_path=None, say=
         if kind == 'fall':
             cue('HOLD the robot still and upright on the floor, joints straight, a cushion ahead and behind: '
                 'calibrating the gyro ({:.1f} s)'.format(cal_config['settle_s'] + cal_config['duration_s']))
+        elif joint == 1:
+            cue('HOLD the robot upside down by both wheels, firmly (they must not turn), joints straight, links '
+                'hanging: the wheel motors will swing it to and fro on one side for {:.0f} s, then go limp; '
+                'calibrating the gyro (hold it still)'.format(swing_duration_s(joint)))
         else:
             centre, segments = SWING[joint]
             cue('HOLD link 1 still and upright (a stand or a vice), wheels free: joint {} will lean its link '
@@ -261,7 +315,9 @@ def _loop(kind, joint, devices, clock, config, joints, bias_dps, battery_v, rows
           state):
     """The experiment's ticks, every PERIOD_S from now, until its end (state['ended'])."""
     gyro_sign = config['gyro_sign']
-    swung = None if kind == 'fall' else joint - 2
+    swung = None if kind == 'fall' or joint == 1 else joint - 2
+    axle = kind == 'swing' and joint == 1
+    pol = config['polarity']
     t0 = clock.now()
     k = 0
     angle0 = None
@@ -275,7 +331,14 @@ def _loop(kind, joint, devices, clock, config, joints, bias_dps, battery_v, rows
         tilt_deg = gyro_sign * (angle - angle0) - bias_dps * t       # link 1's tilt since the start
         ref = 0.0
         refs, rates = [0.0, 0.0], [0.0, 0.0]
-        if swung is not None:
+        d_r = d_l = 0
+        if axle:
+            duty = axle_duty(t)
+            if duty is None:
+                state['ended'] = 'swing done'
+                return
+            d_r, d_l = pol['right_wheel'] * int(round(duty)), pol['left_wheel'] * int(round(duty))
+        elif swung is not None:
             at = swing_reference(t, joint)
             if at is None:
                 state['ended'] = 'swing done'
@@ -283,12 +346,16 @@ def _loop(kind, joint, devices, clock, config, joints, bias_dps, battery_v, rows
             ref = refs[swung] = at[0]
             rates[swung] = at[1]
         d2, d3 = joints.duties(enc, refs, rates)
-        if swung is not None:
-            away = joints.angles(enc)[swung]
-            if abs(away - ref) > SWING_LIMIT_RAD / 2 or abs(away) > SWING_LIMIT_RAD:
+        if kind == 'swing':
+            away = joints.angles(enc)[swung] if not axle else axle_angle(config, devices.counts_per_rot,
+                                                                           joints.zero_counts, enc)
+            if axle and abs(away) > SWING_LIMIT_RAD:
+                raise JointLimit('the robot swung to {:.2f} rad from hanging, beyond the swing\'s {} rad: were the '
+                                 'wheels held and the robot hanging?'.format(away, SWING_LIMIT_RAD))
+            if not axle and (abs(away - ref) > SWING_LIMIT_RAD / 2 or abs(away) > SWING_LIMIT_RAD):
                 raise JointLimit('joint {} swung to {:.2f} rad, beyond the swing\'s {} rad: its motor could not hold '
                                  'the link (too heavy, or too far from upright?)'.format(joint, away, SWING_LIMIT_RAD))
-        duties = [0, 0, d2, d3]
+        duties = [d_r, d_l, d2, d3]
         try:
             devices.write_duties(duties)
         except (OSError, ValueError) as e:
@@ -306,6 +373,8 @@ def _loop(kind, joint, devices, clock, config, joints, bias_dps, battery_v, rows
             if t > timeout_s:
                 raise NotReleased('the robot did not fall within {:.0f} s of the LET GO cue: let go of it '
                                   'when told (or give it a nudge)'.format(timeout_s))
+        elif axle:
+            pass        # link 1 swings: the gyro has nothing to watch
         elif abs(gyro_sign * rate - bias_dps) > HOLD_RATE_DPS:
             moving += 1
             if moving >= HOLD_TICKS:
@@ -314,7 +383,7 @@ def _loop(kind, joint, devices, clock, config, joints, bias_dps, battery_v, rows
                                                                               HOLD_RATE_DPS, HOLD_TICKS))
         else:
             moving = 0
-        if swung is not None and t > end_s:
+        if kind == 'swing' and t > end_s:
             state['ended'] = 'swing done'
             return
         k += 1
@@ -325,7 +394,9 @@ def _loop(kind, joint, devices, clock, config, joints, bias_dps, battery_v, rows
 def add_arguments(sp, kind):
     """The fall-test / swing-test subcommand's options (tipbot_fw.cli adds --config, --sysfs-root)."""
     if kind == 'swing':
-        sp.add_argument('--joint', type=int, choices=(2, 3), required=True, help='the joint whose motor swings its link')
+        sp.add_argument('--joint', type=int, choices=(1, 2, 3), required=True,
+                        help='the joint whose motor swings its link (1: the wheel motors swing the whole robot, '
+                        'hanging upside down from its held wheels)')
     else:
         sp.add_argument('--stop-deg', type=float, default=DEFAULTS['stop_deg'],
                         help='the fall is over (motors stopped) at this tilt (default {:g} deg)'.format(

@@ -11,14 +11,18 @@ their uncertainty; its motors, e.g. from ``identify``) is the prior; the experim
   pole's square is g over it);
 - the swing of joint 3: link 3's lever a3 = m3 l3 and inertia b3 = J3 + m3 l3^2 (the rotor's Jm
   taken off);
-- the swing of joint 2: a2 and b2 of links 2 and 3 about joint 2 (hostsim.model.bodies).
+- the swing of joint 2: a2 and b2 of links 2 and 3 about joint 2 (hostsim.model.bodies);
+- the axle swing (joint 1): the whole robot's lever about the axle a1 = M h and its inertia there
+  I_a (the wheel motors' rotors taken off).
 
 (In hostsim.model, not hostsim.logs: the owners' study, hostsim.studies.robot_study, runs it.)
 The nine link parameters (m_i, l_i, J_i) are the maximum a posteriori estimate: least squares in
 their logarithms of the prior's deviations over its standard deviations and of each measurement's
 deviation over its standard deviation: the fit's own (tipbot_fw.bodyfit) and a floor for what the
-fit's model leaves out (MEASUREMENT_FLOOR: 2 % for the fall, 8 % for a lever, as the realistic
-brick's gear play and friction bias them, 30 % for a swing's inertia). The posterior covariance
+fit's model leaves out (MEASUREMENT_FLOOR: 2 % for the fall, 8 % for a joint's lever, as the
+realistic brick's gear play and friction bias them, 5 % for the axle's (the gyro's scale, 2 %, and
+the battery's sag under the near-stalled wheel motors, of which the log has only the start's
+voltage), 30 % for a swing's inertia). The posterior covariance
 (the inverse of the Gauss-Newton matrix at the optimum) goes into the file's ``uncertainty``
 block (hostsim.model.spread), which ``make gains PARAMS=FILE`` uses: its design holds the robots
 two standard deviations along the loosest axes, and its verdict says whether to deploy.
@@ -41,7 +45,7 @@ from hostsim.model.spread import spread_from_doc
 from tipbot_fw import bodyfit, fields
 
 LINK_PARAMETERS = ("m1_kg", "m2_kg", "m3_kg", "l1_m", "l2_m", "l3_m", "j1_kg_m2", "j2_kg_m2", "j3_kg_m2")
-MEASUREMENT_FLOOR = {"fall_ratio": 0.02, "lever": 0.08, "inertia": 0.30}
+MEASUREMENT_FLOOR = {"fall_ratio": 0.02, "lever": 0.08, "lever1": 0.05, "inertia": 0.30}
 DEFAULT_PRIOR_SIGMA = 0.5
 
 
@@ -60,7 +64,8 @@ def read_log(path, error):
 
 def measure(params, fall_log=None, swing_logs=()):
     """Fit the experiment logs with the parameters' motors and wheels -> {name: (value, rel sigma,
-    details)}: fall_ratio (I_roll / Mh), lever3, inertia3, lever2, inertia2 (inertias without the rotor)."""
+    details)}: fall_ratio (I_roll / Mh), lever3, inertia3, lever2, inertia2, lever1, inertia1 (inertias
+    without the rotors)."""
     out = {}
     if fall_log:
         header, rows, _ = read_log(fall_log, RobotFitError)
@@ -76,7 +81,7 @@ def measure(params, fall_log=None, swing_logs=()):
         header, rows, _ = read_log(path, RobotFitError)
         _kind(path, header, "swing")
         logs[header.get("joint")] = (path, header, rows)
-    for joint in (3, 2):
+    for joint in (3, 2, 1):
         if joint not in logs:
             continue
         path, header, rows = logs[joint]
@@ -87,8 +92,8 @@ def measure(params, fall_log=None, swing_logs=()):
                                     lever3=lever3 if joint == 2 else None)
         except bodyfit.FitError as exc:
             raise RobotFitError("%s: %s" % (path, exc))
-        out["lever%d" % joint] = (fit["lever_kg_m"], math.hypot(fit["lever_se"] / fit["lever_kg_m"],
-                                                                 MEASUREMENT_FLOOR["lever"]), fit)
+        floor = MEASUREMENT_FLOOR["lever1" if joint == 1 else "lever"]
+        out["lever%d" % joint] = (fit["lever_kg_m"], math.hypot(fit["lever_se"] / fit["lever_kg_m"], floor), fit)
         inertia = fit["inertia_kg_m2"] - jm
         if inertia > 0:
             out["inertia%d" % joint] = (inertia, math.hypot(fit["inertia_se"] / inertia,

@@ -24,7 +24,7 @@ from tipbot_fw import fields
 K_SIGMA = 2.0
 MIN_AXIS_SIGMA = 0.01
 # Which experiment measures which parameters: what to measure again where a fit is loose.
-MEASUREMENT_OF = {"1": "the fall test (python3 -m tipbot_fw fall-test)",
+MEASUREMENT_OF = {"1": "the fall test and the axle swing (python3 -m tipbot_fw fall-test; swing-test --joint 1)",
                   "2": "the swing of joint 2 (python3 -m tipbot_fw swing-test --joint 2)",
                   "3": "the swing of joint 3 (python3 -m tipbot_fw swing-test --joint 3)"}
 

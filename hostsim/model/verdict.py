@@ -4,10 +4,10 @@ which measurement).
 
 The verdict: **deploy** when the design holds its whole uncertainty set (hostsim.model.kalman,
 with the parameters' spread: hostsim.model.spread, which covers what the experiments leave loose:
-the links' own inertias) and the parameters come from the three experiments (the fall and both
-swings, hostsim.model.robotfit); else **measure again**, naming the experiments not done, or the
-one that measures the part of the robot the design does not hold
-(hostsim.model.spread.MEASUREMENT_OF).
+the links' own inertias) and the parameters come from the fall and both joint swings
+(hostsim.model.robotfit; the axle swing, which gives a1, is not required); else **measure
+again**, naming the experiments not done, or the one that measures the part of the robot the
+design does not hold (hostsim.model.spread.MEASUREMENT_OF).
 """
 from hostsim.model import bodies, preflight
 from hostsim.model.spread import MEASUREMENT_OF

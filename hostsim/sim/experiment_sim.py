@@ -10,7 +10,9 @@ values of a brick scenario (default scenarios/brick_realistic.json). The duties 
 - the fall: a hand holds the robot at ``hold_tilt_rad`` (the firmware is told it stands at its
   start pose, 0: an owner's upright is a degree or two off) during the calibration, and lets go
   ``REACTION_S`` after the LET GO cue; a cushion stops it past ``CUSHION_RAD``;
-- the swing: link 1 on a stand (hostsim.world.stand) throughout.
+- the swing: link 1 on a stand (hostsim.world.stand) throughout; the axle swing (joint 1): the
+  robot upside down (th1 = pi), hanging from its wheels held (the stand holds d_r and d_l only),
+  the wheel motors with their friction and gear play.
 
 ``simulate_experiment`` -> (exit code, log header); the log at ``log_path`` is the brick's.
 """
@@ -49,6 +51,7 @@ class ExperimentWorld:
         self.k = 0
         self.frac = [0.0] * 4
         self.held = hold                 # a hand holds the robot still (the fall, before the release)
+        self.cushion = hold              # the fall ends on a cushion
         self.release_s = None
         self.landed = False
         self.devices = None
@@ -72,7 +75,7 @@ class ExperimentWorld:
             self.plant.advance(u, DT_S)
             th1 = float(self.plant.x_si[2])
             self.max_abs_th1 = max(self.max_abs_th1, abs(th1))
-            if abs(th1) > CUSHION_RAD:
+            if self.cushion and abs(th1) > CUSHION_RAD:
                 self.landed = True
                 self.plant.x[5:] = 0.0
         self.k += 1
@@ -97,16 +100,19 @@ def simulate_experiment(kind, params, log_path, joint=None, seed=0, hold_tilt_ra
     x0 = np.zeros(10)
     if kind == "fall":
         x0[2] = hold_tilt_rad
+    axle = kind == "swing" and joint == 1
+    if axle:
+        x0[2] = math.pi
     friction = friction_torques_nm(b.friction_deadband_pct, params)
     backlash = [math.radians(d) for d in b.backlash_deg]
-    if kind == "swing":
+    if kind == "swing" and not axle:
         # the wheels turn freely in the air and take no part in the swing: their motors' friction
         # and free play are left out (a stuck wheel's constraint against the stiff stand is not
         # something the drivetrain's per-step events integrate well)
         friction[:2], backlash[:2] = [0.0, 0.0], [0.0, 0.0]
     plant = DrivetrainPlant(model, x0, dt_s=DT_S, method="heun", friction_nm=friction, backlash_rad=backlash)
     if kind == "swing":
-        plant.load = Stand(model, x0)
+        plant.load = Stand(model, x0, held=(0, 1) if axle else (0, 1, 2))
     config = firmware_config(sc, params["rw_m"])
     signs = tuple(config["polarity"][r] for r in MOTOR_ROLES)
     rng = np.random.default_rng([seed, 7])

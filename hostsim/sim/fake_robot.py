@@ -28,6 +28,10 @@ Each firmware run (from its motors' start-up to their stop) gets the robot held 
 pose again, as an owner picks the robot up before restarting it: no run starts lying on the
 floor, where a still gyro and still wheels would look like a robot in balance.
 
+--stand holds link 1 upright (the joint swing test); --hang holds the robot upside down by its
+wheels, th1 = pi, link 1 free to swing about the axle (the axle swing, swing-test --joint 1), and
+the robot has "fallen" 90 degrees from hanging.
+
 The gyro: from the fake's start it counts the angle of its first mode, with the scenario's
 bias, until the firmware switches it to GYRO-G&A; the first samples after the switch are
 still the old mode's (hostsim.world.fake_ev3.GYRO_MODE_SWITCH_S), as on the real sensor.
@@ -77,14 +81,18 @@ MELODY_GAP_S = 0.3
 class RealTimeRobot:
     """Plant + sensors + FakeEV3 in ``root``, advanced by :meth:`step` at wall-clock times."""
 
-    def __init__(self, sc, root, params=None, hold_s=DEFAULT_HOLD_S, say=None, stand=False):
+    def __init__(self, sc, root, params=None, hold_s=DEFAULT_HOLD_S, say=None, stand=False, hang=False):
         self.sc = sc
         nominal = load_params() if params is None else params
         p = scaled_params(sc.param_scale, nominal)
         self.model = RobotModel(sc.plant_variant, p)
         to_model = 1.0 / np.diag(state_scale_to_si(self.model.variant))
         self.plant = Plant(self.model, np.array(sc.x0_si) * to_model, dt_s=PLANT_DT_S)
-        if stand:       # link 1 held on a stand (the swing test): hostsim.world.stand
+        self.rest_th1 = math.pi if hang else 0.0
+        if hang:        # upside down, the wheels held (the axle swing): hostsim.world.stand, d held
+            self.plant.x[2] = math.pi
+            self.plant.load = Stand(self.model, self.plant.x, held=(0, 1))
+        elif stand:     # link 1 held on a stand (the swing test): hostsim.world.stand
             self.plant.load = Stand(self.model, self.plant.x)
         self.config = firmware_config(sc, nominal["rw_m"])
         s = sc.sensors
@@ -186,7 +194,7 @@ class RealTimeRobot:
             self.trace_t.append(t_s)
             self.trace_x.append(x)
             self.trace_u.append(u)
-            if abs(x[2]) > FALLEN_RAD:
+            if abs(x[2] - self.rest_th1) > FALLEN_RAD:
                 self.fallen = True
                 self.plant.x[5:] = 0.0
         # the voltages the firmware's duties give, held until the next poll
@@ -249,12 +257,14 @@ def main(argv=None):
     ap.add_argument("--write-config", metavar="FILE", help="write the matching firmware configuration to FILE")
     ap.add_argument("--stand", action="store_true", help="link 1 held upright on a stand (for the swing test, "
                     "python3 -m tipbot_fw swing-test)")
+    ap.add_argument("--hang", action="store_true", help="the robot upside down, held by its wheels (for the axle "
+                    "swing, python3 -m tipbot_fw swing-test --joint 1)")
     ap.add_argument("--trace", metavar="FILE", help="save the plant's true trajectory (npz) at the end")
     a = ap.parse_args(argv)
     try:
         sc = load_scenario(a.scenario) if a.scenario else parse_scenario({}, "<default scenario>")
         robot = RealTimeRobot(sc, a.root, hold_s=a.hold_s, say=lambda m: print("fake_robot: " + m, flush=True),
-                              stand=a.stand)
+                              stand=a.stand, hang=a.hang)
     except (TipbotError, ConfigError, FakeEV3Error) as e:     # a scenario the firmware could not be told
         print("fake_robot: error: %s" % e, file=sys.stderr)
         return 2

@@ -10,7 +10,7 @@ Each robot, drawn from its own generator seeded by (seed, index):
 - its **owner's description** (hostsim.model.description): each link's mass, balance point and
   length (twice the balance point: the model's rods) times U(1 - ENTRY_ERROR, 1 + ENTRY_ERROR),
   the wheel and track within ENTRY_ERROR_WHEEL; the inertias then estimated from those;
-- the **fall and swing tests** (the firmware's tipbot_fw.experiments, lock-step on the true robot
+- the **fall, the joint swings and the axle swing** (the firmware's tipbot_fw.experiments, lock-step on the true robot
   with the realistic brick's drivetrain, encoders and gyro: hostsim.sim.experiment_sim);
 - the **fit** (hostsim.model.robotfit) and the **gains** designed for it (hostsim.model.gains, the
   physical variant, with the fit's spread) and its verdict;
@@ -106,7 +106,7 @@ def run_robot(task):
             json.dump(desc_doc, f)
         logs = {}
         hold = float(rng.uniform(-0.03, 0.03))
-        for kind, joint in (("fall", None), ("swing", 3), ("swing", 2)):
+        for kind, joint in (("fall", None), ("swing", 3), ("swing", 2), ("swing", 1)):
             name = kind if joint is None else "swing%d" % joint
             path = os.path.join(tmp, name + ".log")
             code, header, _ = simulate_experiment(kind, true, path, joint=joint, seed=seed * 1000 + index,
@@ -114,7 +114,8 @@ def run_robot(task):
             row[name] = {"exit_code": code, "stop": header.get("stop_message")}
             if code == 0:
                 logs[name] = path
-        doc, fitted, measured = fit_files(desc_path, logs.get("fall"), [logs[k] for k in ("swing3", "swing2") if k in logs])
+        doc, fitted, measured = fit_files(desc_path, logs.get("fall"),
+                                          [logs[k] for k in ("swing3", "swing2", "swing1") if k in logs])
         spread = spread_from_doc(doc, "<fitted>")
         g = design_gains("physical", fitted, spread=spread)
         gains_doc = json.loads(json.dumps(to_document(g)))

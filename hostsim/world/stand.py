@@ -8,6 +8,9 @@ damped for the robot's own inertia about the axle and along the floor), as any c
 does, and stiff enough that the links' reactions move link 1 by a fraction of a degree. It is a
 ``Plant.load`` (hostsim.world.plant: ``due``, ``set_params``, ``reframe``, ``force``), for the plant and the
 drivetrain plant alike.
+
+The axle swing (the robot upside down, its wheels held in the owner's hands) holds the wheels
+only: ``held=(0, 1)`` (d_r, d_l), link 1 free to turn about the axle.
 """
 import math
 
@@ -18,9 +21,10 @@ STAND_DAMPING = 0.9
 
 
 class Stand:
-    """Holds q[:3] (d_r, d_l, th1, the model's units) at ``q0``; force(x) -> the generalized force."""
+    """Holds q[:3] (d_r, d_l, th1, the model's units; those of ``held``) at ``q0``; force(x) -> the
+    generalized force."""
 
-    def __init__(self, model, q0):
+    def __init__(self, model, q0, held=(0, 1, 2)):
         p = model.params
         w = 2 * math.pi * STAND_HZ
         # the inertia each spring works against: link 1 with all above it, the robot along the floor
@@ -32,6 +36,7 @@ class Stand:
         self.k = (mass * w * w * s * s, mass * w * w * s * s, i_axle * w * w)
         self.c = tuple(2 * STAND_DAMPING * k / w for k in self.k)
         self.q0 = [float(v) for v in q0[:3]]
+        self.held = tuple(held)
 
     def due(self, t_s):
         return None
@@ -43,4 +48,5 @@ class Stand:
         return x                        # a stand on a flat table: the floor's frame never turns
 
     def force(self, x):
-        return [-self.k[i] * (x[i] - self.q0[i]) - self.c[i] * x[5 + i] for i in range(3)] + [0.0, 0.0]
+        return [-self.k[i] * (x[i] - self.q0[i]) - self.c[i] * x[5 + i] if i in self.held else 0.0
+                for i in range(3)] + [0.0, 0.0]
