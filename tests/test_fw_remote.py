@@ -134,8 +134,11 @@ def test_the_live_plan_follows_commands_within_the_limits():
 
 
 def test_a_run_driven_over_udp(tmp_path, capsys):
+    # the loop's timing on a shared test machine is not what this test is about: the overrun stop
+    # at its widest (a loaded CI machine lost 41 ms within 0.3 s besides a 30 ms hold)
     config = S.write_json(tmp_path / 'quick.json',
-                          {'realtime_priority': 0, 'gyro_calibration': {'settle_s': 0.05, 'duration_s': 0.05}})
+                          {'realtime_priority': 0, 'gyro_calibration': {'settle_s': 0.05, 'duration_s': 0.05},
+                           'limits': {'max_lost_s': 0.1}})
     probe = _bound()
     port = probe.getsockname()[1]
     probe.close()
