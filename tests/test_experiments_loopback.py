@@ -73,7 +73,7 @@ def test_the_fall_test_against_the_real_time_fake_robot(tmp_path):
 
 @pytest.mark.slow
 @pytest.mark.parametrize("joint, holding, rel, seed", [(3, {"stand": True}, 0.2, 4),
-                                                       (2, {"stand": True, "hang": True}, 0.2, 6),
+                                                       (2, {"stand": True, "hang": True}, 0.1, 6),
                                                        (1, {"hang": True}, 0.1, 5)],
                          ids=["joint 3 on a stand", "joint 2 on a stand, upside down",
                               "the axle, hanging from its wheels"])

@@ -100,7 +100,7 @@ SWING = {2: (0.15, ((0.3, 0.10, 2), (0.7, 0.08, 3), (1.2, 0.05, 4))),
 # (0.62 N m/rad for the paper's, up to 1.2 on an owner's heavier ones) that the PD's 2 N m/rad
 # only halves: a heavy pair sits 2.5 times as far out as its reference and takes more than the
 # Large motor's 0.28 N m beyond 0.25 rad, where nothing stops it falling further. Hanging, gravity
-# restores: the same PD holds the links within their reference (0.6-0.85 of it), the motor's torque
+# restores: the same PD holds the links within their reference (0.7-0.9 of it), the motor's torque
 # g a2 sin(angle) stays below 0.2 N m on the heaviest, and a motor short of torque lets them swing
 # back towards hanging, never away. The lean keeps gravity's torque, hence the gear, on one side.
 # Joint 3 carries link 3 alone (g a3 0.1 N m/rad against 2.3): upright, its usual pose.
