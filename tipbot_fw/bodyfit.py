@@ -399,8 +399,9 @@ def fit_swing(sig, joint, k_v, c, g_m_s2, lever3=None):
     coef, se, rms, delay = best
     inertia, lever = float(coef[0]), float(coef[1])
     if not lever > 0:
+        held = 'upside down' if joint == 1 or sig.get('link1_rad') else 'upright'
         raise FitError('joint {}: the swing gives a non-physical lever ({:.3g} kg m): was link 1 held {} and '
-                       'the link free?'.format(joint, lever, 'upside down' if joint == 1 or sig.get('link1_rad') else 'upright'))
+                       'the link free?'.format(joint, lever, held))
     return {'joint': joint, 'inertia_kg_m2': inertia, 'inertia_se': float(se[0]), 'lever_kg_m': lever,
             'lever_se': float(se[1]), 'coulomb_nm': float(coef[2]), 'offset_nm': float(coef[3]), 'rms_nm': rms, 'span_rad': span}
 

@@ -25,9 +25,9 @@ table), upright for joint 3, upside down for joint 2 (``HANGING``: links 2 and 3
 it, gravity pulling them back rather than away), the other joint held straight by its motor, the
 joint ``--joint`` follows a reference through a PD on its encoder: it leans the link (0.15 rad,
 joint 3 0.12 rad) and swings it about there in whole sine cycles (0.3, 0.7 and 1.2 Hz, amplitudes
-0.10, 0.08 and 0.05 rad, the same on joint 3), then back; 0.35 rad off its reference or beyond 0.7 rad it stops (the
-motor could not hold the link); the gyro watches link 1 (a turn faster than 30 deg/s for three
-ticks stops the test: link 1 was not held). The host fits the joint's equation of motion with the
+0.10, 0.08 and 0.05 rad, the same on joint 3), then back; 0.35 rad off its reference or beyond
+0.7 rad it stops (the motor could not hold the link); the gyro watches link 1 (a turn faster than
+30 deg/s for three ticks stops the test: link 1 was not held). The host fits the joint's equation of motion with the
 motor's parameters: its lever (gravity torque) and inertia.
 
 **The axle swing** (``--joint 1``). The owner holds the robot upside down by its two wheels (they
@@ -98,7 +98,7 @@ SWING = {2: (0.15, ((0.3, 0.10, 2), (0.7, 0.08, 3), (1.2, 0.05, 4))),
 # The swings done with the robot upside down (link 1 held, the links above the joint hanging below
 # it): joint 2. Upright, gravity pulls links 2 and 3 away from their reference with a stiffness g a2
 # (0.62 N m/rad for the paper's, up to 1.2 on an owner's heavier ones) that the PD's 2 N m/rad
-# only halves: a heavy pair sits 2.5 times as far out as its reference and takes more than the
+# only halves: a heavy pair sits twice as far out as its reference or more and takes more than the
 # Large motor's 0.28 N m beyond 0.25 rad, where nothing stops it falling further. Hanging, gravity
 # restores: the same PD holds the links within their reference (0.7-0.9 of it), the motor's torque
 # g a2 sin(angle) stays below 0.2 N m on the heaviest, and a motor short of torque lets them swing
