@@ -72,11 +72,15 @@ def test_the_fall_test_against_the_real_time_fake_robot(tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("joint, holding, rel, seed", [(3, {"stand": True}, 0.2, 4), (1, {"hang": True}, 0.1, 5)],
-                         ids=["joint 3 on a stand", "the axle, hanging from its wheels"])
+@pytest.mark.parametrize("joint, holding, rel, seed", [(3, {"stand": True}, 0.2, 4),
+                                                       (2, {"stand": True, "hang": True}, 0.1, 6),
+                                                       (1, {"hang": True}, 0.1, 5)],
+                         ids=["joint 3 on a stand", "joint 2 on a stand, upside down",
+                              "the axle, hanging from its wheels"])
 def test_the_swing_tests_against_the_real_time_fake_robot(tmp_path, joint, holding, rel, seed):
-    """The joint-3 swing with link 1 on a stand, the axle swing upside down held by the wheels: the
-    swung lever (a3; a1 = M h) within rel of the paper robot's."""
+    """The joint-3 swing with link 1 on a stand, the joint-2 swing with link 1 on a stand upside
+    down, the axle swing upside down held by the wheels: the swung lever (a3, a2 (link 3's bend
+    from the paper's a3), a1 = M h) within rel of the paper robot's."""
     robot = FakeRobot(tmp_path, '{"name": "swing", "seed": %d}' % seed, **holding)
     log = str(tmp_path / ("swing%d.log" % joint))
     try:
@@ -89,5 +93,6 @@ def test_the_swing_tests_against_the_real_time_fake_robot(tmp_path, joint, holdi
     assert header["kind"] == "swing" and header["joint"] == joint
     p = load_params()
     k_v, c, jm = bodyfit.motor_constants(p, joint)
-    fit = bodyfit.fit_swing(bodyfit.signals(header, rows), joint, k_v, c, p["g_m_s2"])
+    fit = bodyfit.fit_swing(bodyfit.signals(header, rows), joint, k_v, c, p["g_m_s2"],
+                            lever3=bodies.levers(p)[2] if joint == 2 else None)
     assert fit["lever_kg_m"] == pytest.approx(bodies.levers(p)[joint - 1], rel=rel)

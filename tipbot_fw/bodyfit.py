@@ -38,7 +38,8 @@ constant (link 1 a little off vertical), tau_b the backlash's share (the encoder
 rotor; the link sits on one side of the gear's free play by the torque's sign, cos theta_abs
 of a lever's angle off). Both sides pass the same filter F(s) = w^2/(s + w)^2 (the
 state-variable filter method: s^2 F theta exactly, no differentiated counts), then linear least
-squares for I, a, tau_c, tau_0, tau_b.
+squares for I, a, tau_c, tau_0, tau_b. The joint-2 swing is done upside down (the log's ``hanging``):
+theta_abs is then pi plus the joint angles, gravity's torque restoring.
 
 **The axle swing** (joint 1). The robot upside down, its wheels held, the wheel motors (their
 stators on link 1) driving it open-loop: the same equation for link 1 about the axle, I the
@@ -84,7 +85,8 @@ def signals(header, rows):
     """An experiment log's readings in SI, the model's directions: t (s), psi (the wheels' mean
     angle relative to link 1, rad, from the first row), th2, th3 (joint angles, rad, the start
     pose's plus the change), tilt (link 1, rad, the start pose's th1 plus the gyro angle's change,
-    its calibrated bias removed), rate (rad/s, bias removed), u2, u3 (volts on the joints)."""
+    its calibrated bias removed), rate (rad/s, bias removed), u2, u3 (volts on the joints),
+    link1_rad (where link 1 was held in a swing: 0 upright, pi upside down)."""
     config = header['config']
     pol = config['polarity']
     cpr = header['counts_per_rot']
@@ -108,7 +110,7 @@ def signals(header, rows):
     ur = pol['right_wheel'] * col('duty_r') * bv
     ul = pol['left_wheel'] * col('duty_l') * bv
     return dict(t=t, psi=0.5 * (enc_r + enc_l), th2=th2, th3=th3, tilt=tilt, rate=rate, u2=u2, u3=u3, ur=ur, ul=ul,
-                ref=col('ref_rad'))
+                ref=col('ref_rad'), link1_rad=math.pi if header.get('hanging') else 0.0)
 
 
 def _inflation(t):
@@ -349,8 +351,9 @@ def fit_swing(sig, joint, k_v, c, g_m_s2, lever3=None):
     else:
         theta = motion = sig['th%d' % joint]
         u = sig['u%d' % joint]
-        # link 1 is held: its tilt is a constant (tau_0 takes it), not the gyro's drifting integral
-        absolute = sig['th2'] + sig['th3'] if joint == 3 else sig['th2'] + sig['th3'][0]
+        # link 1 is held, upright or upside down (link1_rad): its tilt off that is a constant (tau_0
+        # takes it), not the gyro's drifting integral
+        absolute = sig.get('link1_rad', 0.0) + sig['th2'] + (sig['th3'] if joint == 3 else sig['th3'][0])
     if len(t) < 200:
         raise FitError('too few ticks to fit the swing: {}'.format(len(t)))
     span = float(np.max(theta) - np.min(theta))
@@ -385,7 +388,7 @@ def fit_swing(sig, joint, k_v, c, g_m_s2, lever3=None):
     bend = 0.0
     if joint == 2 and lever3 is not None:
         # link 3 is held by a PD, not rigidly: the gravity torque of its bend, from its lever
-        bend = g_m_s2 * lever3 * _filter(np.sin(sig['th2'] + sig['th3']) - np.sin(absolute), t, hz)[0]
+        bend = g_m_s2 * lever3 * _filter(np.sin(absolute + sig['th3'] - sig['th3'][0]) - np.sin(absolute), t, hz)[0]
     best = None
     for delay in DELAYS_S:     # where the duties act: a tick's writes land, and hold, after its read
         u_d = np.interp(t - delay, t, u)
@@ -396,8 +399,9 @@ def fit_swing(sig, joint, k_v, c, g_m_s2, lever3=None):
     coef, se, rms, delay = best
     inertia, lever = float(coef[0]), float(coef[1])
     if not lever > 0:
-        raise FitError('joint {}: the swing gives a non-physical lever ({:.3g} kg m): was link 1 held upright and '
-                       'the link free?'.format(joint, lever))
+        held = 'upside down' if joint == 1 or sig.get('link1_rad') else 'upright'
+        raise FitError('joint {}: the swing gives a non-physical lever ({:.3g} kg m): was link 1 held {} and '
+                       'the link free?'.format(joint, lever, held))
     return {'joint': joint, 'inertia_kg_m2': inertia, 'inertia_se': float(se[0]), 'lever_kg_m': lever,
             'lever_se': float(se[1]), 'coulomb_nm': float(coef[2]), 'offset_nm': float(coef[3]), 'rms_nm': rms, 'span_rad': span}
 

@@ -20,13 +20,14 @@ until the tilt passes ``--stop-deg`` (30 deg), where the fall is over and every 
 robot not let go within ``--timeout`` (6 s) stops the test (exit 4). The host (tipbot_fw.bodyfit)
 fits the tilt's growth: the fall pole.
 
-**The joint swing test.** Link 1 held still and upright (on a stand, in a vice, or by a hand
-braced on the table), the other joint held straight by its motor, the joint ``--joint`` follows a
-reference through a PD on its encoder: it leans the link forward (0.15 rad, joint 3 0.12 rad) and
-swings it about there in whole sine cycles (0.3, 0.7 and 1.2 Hz, amplitudes 0.10, 0.08 and 0.05
-rad, the same on joint 3), then back; 0.35 rad off its reference or beyond 0.7 rad it stops (the
-motor could not hold the link); the gyro watches link 1 (a turn faster than 30 deg/s for three
-ticks stops the test: link 1 was not held). The host fits the joint's equation of motion with the
+**The joint swing test.** Link 1 held still (on a stand, in a vice, or by a hand braced on the
+table), upright for joint 3, upside down for joint 2 (``HANGING``: links 2 and 3 hanging below
+it, gravity pulling them back rather than away), the other joint held straight by its motor, the
+joint ``--joint`` follows a reference through a PD on its encoder: it leans the link (0.15 rad,
+joint 3 0.12 rad) and swings it about there in whole sine cycles (0.3, 0.7 and 1.2 Hz, amplitudes
+0.10, 0.08 and 0.05 rad, the same on joint 3), then back; 0.35 rad off its reference or beyond
+0.7 rad it stops (the motor could not hold the link); the gyro watches link 1 (a turn faster than
+30 deg/s for three ticks stops the test: link 1 was not held). The host fits the joint's equation of motion with the
 motor's parameters: its lever (gravity torque) and inertia.
 
 **The axle swing** (``--joint 1``). The owner holds the robot upside down by its two wheels (they
@@ -94,6 +95,16 @@ RATE_TICKS = 4
 # doubled link 3 leaning 0.3 rad took more than its 0.28 N m).
 SWING = {2: (0.15, ((0.3, 0.10, 2), (0.7, 0.08, 3), (1.2, 0.05, 4))),
          3: (0.12, ((0.3, 0.10, 2), (0.7, 0.08, 3), (1.2, 0.05, 4)))}
+# The swings done with the robot upside down (link 1 held, the links above the joint hanging below
+# it): joint 2. Upright, gravity pulls links 2 and 3 away from their reference with a stiffness g a2
+# (0.62 N m/rad for the paper's, up to 1.2 on an owner's heavier ones) that the PD's 2 N m/rad
+# only halves: a heavy pair sits twice as far out as its reference or more and takes more than the
+# Large motor's 0.28 N m beyond 0.25 rad, where nothing stops it falling further. Hanging, gravity
+# restores: the same PD holds the links within their reference (0.7-0.9 of it), the motor's torque
+# g a2 sin(angle) stays below 0.2 N m on the heaviest, and a motor short of torque lets them swing
+# back towards hanging, never away. The lean keeps gravity's torque, hence the gear, on one side.
+# Joint 3 carries link 3 alone (g a3 0.1 N m/rad against 2.3): upright, its usual pose.
+HANGING = {2: True, 3: False}
 # The axle swing's wheel duty (percent, both motors, model direction): a lean, then sine cycles
 # (Hz, amplitude %, cycles) about it, smaller where the hanging robot swings by itself (about
 # 1.2 Hz for the paper's robot); lean minus amplitude stays above 0 (the gears on one side of their
@@ -244,7 +255,8 @@ def run_experiment(kind, devices, clock, config, joint=None, log_path=None, say=
         header.update(axle_lean_pct=AXLE_SWING[0], axle_segments=[list(s) for s in AXLE_SWING[1]], settle_s=SETTLE_S)
     else:
         header.update(hold_rate_dps=HOLD_RATE_DPS, swing_centre_rad=SWING[joint][0],
-                      swing_segments=[list(s) for s in SWING[joint][1]], settle_s=SETTLE_S)
+                      swing_segments=[list(s) for s in SWING[joint][1]], settle_s=SETTLE_S,
+                      hanging=HANGING[joint])
     rows = array.array('d')
     state = {}
 
@@ -265,10 +277,12 @@ def run_experiment(kind, devices, clock, config, joint=None, log_path=None, say=
                 'calibrating the gyro (hold it still)'.format(swing_duration_s(joint)))
         else:
             centre, segments = SWING[joint]
-            cue('HOLD link 1 still and upright (a stand or a vice), wheels free: joint {} will lean its link '
-                'forward by {:.0f} deg and swing it by up to {:.0f} deg about there for {:.0f} s, then the joints '
-                'go limp (catch the links); calibrating the gyro'.format(
-                    joint, centre / DEG, max(a for _, a, _ in segments) / DEG, swing_duration_s(joint)))
+            cue('HOLD link 1 still and {} (a stand or a vice), wheels free: joint {} will lean its link '
+                'by {:.0f} deg and swing it by up to {:.0f} deg about there for {:.0f} s, then the joints '
+                'go limp ({}); calibrating the gyro'.format(
+                    'UPSIDE DOWN, the links hanging below it' if HANGING[joint] else 'upright', joint, centre / DEG,
+                    max(a for _, a, _ in segments) / DEG, swing_duration_s(joint),
+                    'they fall back to hanging' if HANGING[joint] else 'catch the links'))
         heartbeat.arm()
         cal = calibrate_gyro(devices, BeatingClock(clock, heartbeat), PERIOD_S, cal_config)
         header['calibration'] = cal.as_dict()

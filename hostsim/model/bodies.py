@@ -5,7 +5,7 @@ its centre of mass l_i above its lower joint, its inertia J_i about that centre,
 joint 2 l_i above the lower one. With the joints held straight, the parts above a joint are one
 rigid body, and two experiments measure such bodies (docs/your-robot.md):
 
-- the **joint swing** (link 1 held upright, one joint motor swings what it carries): the
+- the **joint swing** (link 1 held, one joint motor swings what it carries): the
   joint's *lever* ``a_j``, the first moment about the joint of everything above it (its gravity
   torque is g a_j sin(angle)), and its inertia ``b_j`` about the joint (the rotor's not
   included):

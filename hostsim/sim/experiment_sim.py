@@ -10,7 +10,8 @@ values of a brick scenario (default scenarios/brick_realistic.json). The duties 
 - the fall: a hand holds the robot at ``hold_tilt_rad`` (the firmware is told it stands at its
   start pose, 0: an owner's upright is a degree or two off) during the calibration, and lets go
   ``REACTION_S`` after the LET GO cue; a cushion stops it past ``CUSHION_RAD``;
-- the swing: link 1 on a stand (hostsim.world.stand) throughout; the axle swing (joint 1): the
+- the swing: link 1 on a stand (hostsim.world.stand) throughout, upright, or upside down (th1 = pi)
+  for a joint the firmware swings hanging (tipbot_fw.experiments.HANGING); the axle swing (joint 1): the
   robot upside down (th1 = pi), hanging from its wheels held (the stand holds d_r and d_l only),
   the wheel motors with their friction and gear play.
 
@@ -30,7 +31,7 @@ from hostsim.world.stand import Stand
 from tipbot_fw.io.clock import VirtualClock
 from tipbot_fw.config import MOTOR_ROLES
 from tipbot_fw.io.devices import MemoryDevices
-from tipbot_fw.experiments import run_experiment
+from tipbot_fw.experiments import HANGING, run_experiment
 
 DT_S = 0.001
 IO_LATENCY_S = 0.002
@@ -101,7 +102,7 @@ def simulate_experiment(kind, params, log_path, joint=None, seed=0, hold_tilt_ra
     if kind == "fall":
         x0[2] = hold_tilt_rad
     axle = kind == "swing" and joint == 1
-    if axle:
+    if axle or (kind == "swing" and HANGING[joint]):
         x0[2] = math.pi
     friction = friction_torques_nm(b.friction_deadband_pct, params)
     backlash = [math.radians(d) for d in b.backlash_deg]
@@ -112,7 +113,7 @@ def simulate_experiment(kind, params, log_path, joint=None, seed=0, hold_tilt_ra
         friction[:2], backlash[:2] = [0.0, 0.0], [0.0, 0.0]
     plant = DrivetrainPlant(model, x0, dt_s=DT_S, method="heun", friction_nm=friction, backlash_rad=backlash)
     if kind == "swing":
-        plant.load = Stand(model, x0, held=(0, 1) if axle else (0, 1, 2))
+        plant.load = Stand(model, x0, held=(0, 1) if axle else (0, 1, 2), dt_s=DT_S)
     config = firmware_config(sc, params["rw_m"])
     signs = tuple(config["polarity"][r] for r in MOTOR_ROLES)
     rng = np.random.default_rng([seed, 7])

@@ -30,7 +30,8 @@ floor, where a still gyro and still wheels would look like a robot in balance.
 
 --stand holds link 1 upright (the joint swing test); --hang holds the robot upside down by its
 wheels, th1 = pi, link 1 free to swing about the axle (the axle swing, swing-test --joint 1), and
-the robot has "fallen" 90 degrees from hanging.
+the robot has "fallen" 90 degrees from hanging; both hold link 1 upside down, the links hanging
+below it (the joint-2 swing, swing-test --joint 2).
 
 The gyro: from the fake's start it counts the angle of its first mode, with the scenario's
 bias, until the firmware switches it to GYRO-G&A; the first samples after the switch are
@@ -89,11 +90,12 @@ class RealTimeRobot:
         to_model = 1.0 / np.diag(state_scale_to_si(self.model.variant))
         self.plant = Plant(self.model, np.array(sc.x0_si) * to_model, dt_s=PLANT_DT_S)
         self.rest_th1 = math.pi if hang else 0.0
-        if hang:        # upside down, the wheels held (the axle swing): hostsim.world.stand, d held
+        if hang:        # upside down: th1 = pi
             self.plant.x[2] = math.pi
+        if stand:       # link 1 held on a stand (the joint swing test; --hang: upside down): hostsim.world.stand
+            self.plant.load = Stand(self.model, self.plant.x, dt_s=PLANT_DT_S)
+        elif hang:      # the wheels held (the axle swing): d held, link 1 free
             self.plant.load = Stand(self.model, self.plant.x, held=(0, 1))
-        elif stand:     # link 1 held on a stand (the swing test): hostsim.world.stand
-            self.plant.load = Stand(self.model, self.plant.x)
         self.config = firmware_config(sc, nominal["rw_m"])
         s = sc.sensors
         self.battery_v = s.battery_v
@@ -256,9 +258,10 @@ def main(argv=None):
                     % DEFAULT_HOLD_S)
     ap.add_argument("--write-config", metavar="FILE", help="write the matching firmware configuration to FILE")
     ap.add_argument("--stand", action="store_true", help="link 1 held upright on a stand (for the swing test, "
-                    "python3 -m tipbot_fw swing-test)")
+                    "python3 -m tipbot_fw swing-test --joint 3)")
     ap.add_argument("--hang", action="store_true", help="the robot upside down, held by its wheels (for the axle "
-                    "swing, python3 -m tipbot_fw swing-test --joint 1)")
+                    "swing, python3 -m tipbot_fw swing-test --joint 1); with --stand, link 1 held upside down (for "
+                    "swing-test --joint 2)")
     ap.add_argument("--trace", metavar="FILE", help="save the plant's true trajectory (npz) at the end")
     a = ap.parse_args(argv)
     try:
