@@ -220,6 +220,30 @@ def test_the_joint_2_swing_of_a_simulated_heavy_robot_completes_hanging_and_give
     assert fit["lever_kg_m"] == pytest.approx(bodies.levers(true)[1], rel=0.10)
 
 
+@pytest.mark.parametrize("scale", [{"m3_kg": 1.4, "l3_m": 1.4, "j3_kg_m2": 1.4 * 1.96},
+                                   {"m3_kg": 0.6, "l3_m": 0.6, "j3_kg_m2": 0.6 * 0.36}],
+                         ids=["link 3 of twice the lever", "link 3 of a third of the lever"])
+def test_the_joint_3_swing_of_a_simulated_robot_reads_link_3s_lever_within_6_percent(tmp_path, scale):
+    """The firmware's joint-3 swing, lock-step on the realistic brick (the Medium motor's 10 %
+    dead band: 18 mN m of friction), of a robot whose link 3's lever is twice the paper's (its
+    gravity torque near the Medium motor's reach at the swing's furthest lean) or a third of it
+    (gravity's variation over the swing, 0.017 N m, below the friction): link 1 held upside down,
+    it completes, the link within its reference's furthest lean, and its own fit finds a3 within
+    6 % (the upright swing of 0.02-0.22 rad read the study's robots' a3 -20 % to +13 %)."""
+    true = scaled_params(scale, load_params())
+    path = str(tmp_path / "swing3.log")
+    code, header, world = simulate_experiment("swing", true, path, joint=3, seed=3)
+    assert code == 0, header["stop_message"]
+    assert header["hanging"] is True
+    h, rows = logfile.read_log(path)
+    sig = bodyfit.signals(h, rows)
+    centre, segments = SWING[3]
+    assert np.max(np.abs(sig["th3"] - sig["th3"][0])) <= centre + max(a for _, a, _ in segments)
+    k_v, c, jm = bodyfit.motor_constants(true, 3)
+    fit = bodyfit.fit_swing(sig, 3, k_v, c, true["g_m_s2"])
+    assert fit["lever_kg_m"] == pytest.approx(bodies.levers(true)[2], rel=0.06)
+
+
 # ---------------------------------------------------------------------------- the experiments, simulated
 @pytest.fixture(scope="module")
 def paper_logs(tmp_path_factory):
@@ -264,7 +288,8 @@ def test_the_pre_flight_check_refuses_a_robot_whose_link_3_is_twice_as_heavy_as_
     """The gains of the description (the committed physical gains: params/robot.json), the robot
     with link 3 twice as heavy (its inertia too): its fall pole hardly moves, its joint-3 swing
     shows the lever doubled, beyond what the design holds with its margins (0-4 ms of delay, the
-    motors +-20 %: hostsim.model.preflight.loop_holds), and the check says so."""
+    motors +-20 %: hostsim.model.preflight.loop_holds; 2 % beyond its edge), and the check says so
+    (OUTSIDE, or UNSURE should the swing read it a little low)."""
     true = scaled_params({"m3_kg": 2.0, "j3_kg_m2": 2.0}, load_params())
     fall, swing = str(tmp_path / "fall.log"), str(tmp_path / "swing3.log")
     assert simulate_experiment("fall", true, fall)[0] == 0
@@ -272,8 +297,24 @@ def test_the_pre_flight_check_refuses_a_robot_whose_link_3_is_twice_as_heavy_as_
     lines = []
     ok, why = preflight.run_check(load_gains(PHYSICAL_GAINS), fall, [swing], say=lines.append)
     assert not ok
-    assert "lever3_kg_m outside what the gains hold" in why, "\n".join(lines)
+    assert "lever3_kg_m" in why, "\n".join(lines)
+    assert any(line.startswith("pre-flight: lever3_kg_m") and ("OUTSIDE" in line or "UNSURE" in line) for line in lines)
     assert any(line.startswith("pre-flight: fall_pole_1_s") and line.endswith(": ok") for line in lines)
+
+
+@pytest.mark.parametrize("factor, rel_sd, state", [(0.97, 0.02, "ok"), (0.99, 0.02, "UNSURE"), (1.01, 0.002, "OUTSIDE")],
+                         ids=["inside by 1.5 sd", "inside by 0.5 sd", "outside by 5 sd"])
+def test_the_pre_flight_passes_a_measurement_only_inside_its_interval_by_its_standard_deviation(factor, rel_sd,
+                                                                                              state):
+    """A lever3 measured at factor times the interval's upper edge with a relative standard
+    deviation rel_sd: passed only when the edge is beyond that (a robot held only by luck, or a
+    measurement too loose to tell, is refused as UNSURE)."""
+    gains = load_gains(PHYSICAL_GAINS)
+    hi = gains.preflight["intervals"]["lever3_kg_m"][1]
+    ok, lines = preflight.verdict(gains, {"lever3_kg_m": (factor * hi, rel_sd, "swing3.log")})
+    assert ok == (state == "ok")
+    line = [x for x in lines if x.startswith("lever3_kg_m")][0]
+    assert line.endswith(": ok" if state == "ok" else ": %s (swing3.log)" % state)
 
 
 def test_a_gains_file_with_a_bad_preflight_interval_is_refused():

@@ -101,7 +101,7 @@ def _parser(argv=None):
     common(sp)
     for kind, help_text in (('fall', 'the fall test: hold the robot upright, let go when told; the joints held '
                                       '(tipbot_fw.experiments)'),
-                            ('swing', 'the swing test: link 1 held (joint 2: upside down), one joint swings its link '
+                            ('swing', 'the swing test: link 1 held upside down, one joint swings its link '
                                       '(tipbot_fw.experiments)')):
         sp = sub.add_parser(kind + '-test', help=help_text)
         if full:

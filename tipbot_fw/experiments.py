@@ -20,15 +20,15 @@ until the tilt passes ``--stop-deg`` (30 deg), where the fall is over and every 
 robot not let go within ``--timeout`` (6 s) stops the test (exit 4). The host (tipbot_fw.bodyfit)
 fits the tilt's growth: the fall pole.
 
-**The joint swing test.** Link 1 held still (on a stand, in a vice, or by a hand braced on the
-table), upright for joint 3, upside down for joint 2 (``HANGING``: links 2 and 3 hanging below
-it, gravity pulling them back rather than away), the other joint held straight by its motor, the
-joint ``--joint`` follows a reference through a PD on its encoder: it leans the link (0.15 rad,
-joint 3 0.12 rad) and swings it about there in whole sine cycles (0.3, 0.7 and 1.2 Hz, amplitudes
-0.10, 0.08 and 0.05 rad, the same on joint 3), then back; 0.35 rad off its reference or beyond
-0.7 rad it stops (the motor could not hold the link); the gyro watches link 1 (a turn faster than
-30 deg/s for three ticks stops the test: link 1 was not held). The host fits the joint's equation of motion with the
-motor's parameters: its lever (gravity torque) and inertia.
+**The joint swing test.** Link 1 held still and upside down (on a stand, in a vice, or by a hand
+braced on the table; ``HANGING``: the links above the joint hanging below it, gravity pulling
+them back rather than away), the other joint held straight by its motor, the joint ``--joint``
+follows a reference through a PD on its encoder: it leans the link (joint 2 0.15 rad, joint 3
+0.3 rad) and swings it about there in whole sine cycles (0.3, 0.7 and 1.2 Hz; amplitudes 0.10,
+0.08 and 0.05 rad on joint 2, 0.25, 0.20 and 0.12 rad on joint 3), then back; 0.35 rad off its
+reference or beyond 0.7 rad it stops (the motor could not hold the link); the gyro watches link 1
+(a turn faster than 30 deg/s for three ticks stops the test: link 1 was not held). The host fits
+the joint's equation of motion with the motor's parameters: its lever (gravity torque) and inertia.
 
 **The axle swing** (``--joint 1``). The owner holds the robot upside down by its two wheels (they
 must not turn: a firm grip, or the tyres clamped), joints straight, the links hanging below the
@@ -91,20 +91,27 @@ RATE_TICKS = 4
 # torque, high ones the inertia. The centre keeps the link leaning one way throughout, so that
 # gravity holds it on one side of its gear's free play (3 deg on a Large motor, which the encoder,
 # on the rotor's side, does not see: a swing through upright crosses it at every turn and reads a
-# lever 15 % too large). Joint 3 leans less: with it the joint-2 motor must hold links 2 and 3 (a
-# doubled link 3 leaning 0.3 rad took more than its 0.28 N m).
+# lever 15 % too large).
+# Joint 3 swings far (0.05-0.55 rad): its lever is read from how gravity's torque g a3 sin(angle)
+# varies over the swing (the fit's constant takes its mean), against the Medium motor's friction
+# (18 mN m, 10 % duty at 8 V) and its 1-degree counts. Link 3's g a3 is 0.1 N m/rad (the paper's):
+# the old swing (0.02-0.22 rad) varied it by 0.02 N m and read a3 to -20..+13 % over the owners'
+# study's robots; this one by 0.05 N m, -6..0 % (docs/your-robot.md). Its torque, 0.05 N m on the
+# paper's link 3 and 0.11 on one of twice its lever, stays within the Medium motor's 0.11 N m at
+# full duty at 8 V, hanging only: upright the same swing lost two heavy links of the 20.
 SWING = {2: (0.15, ((0.3, 0.10, 2), (0.7, 0.08, 3), (1.2, 0.05, 4))),
-         3: (0.12, ((0.3, 0.10, 2), (0.7, 0.08, 3), (1.2, 0.05, 4)))}
-# The swings done with the robot upside down (link 1 held, the links above the joint hanging below
-# it): joint 2. Upright, gravity pulls links 2 and 3 away from their reference with a stiffness g a2
-# (0.62 N m/rad for the paper's, up to 1.2 on an owner's heavier ones) that the PD's 2 N m/rad
-# only halves: a heavy pair sits twice as far out as its reference or more and takes more than the
-# Large motor's 0.28 N m beyond 0.25 rad, where nothing stops it falling further. Hanging, gravity
-# restores: the same PD holds the links within their reference (0.7-0.9 of it), the motor's torque
-# g a2 sin(angle) stays below 0.2 N m on the heaviest, and a motor short of torque lets them swing
-# back towards hanging, never away. The lean keeps gravity's torque, hence the gear, on one side.
-# Joint 3 carries link 3 alone (g a3 0.1 N m/rad against 2.3): upright, its usual pose.
-HANGING = {2: True, 3: False}
+         3: (0.30, ((0.3, 0.25, 2), (0.7, 0.20, 3), (1.2, 0.12, 4)))}
+# The swings are done with the robot upside down (link 1 held, the links above the joint hanging
+# below it). Upright, gravity pulls the links away from their reference with a stiffness g a
+# (joint 2: 0.62 N m/rad for the paper's links 2 and 3, up to 1.2 on an owner's heavier ones) that
+# the PD's 2 N m/rad only halves: a heavy pair sits twice as far out as its reference or more and
+# takes more than the Large motor's 0.28 N m beyond 0.25 rad, where nothing stops it falling
+# further. Hanging, gravity restores: the same PD holds the links within their reference (0.7-0.9
+# of it), the motor's torque g a sin(angle) stays within its reach on the heaviest, and a motor
+# short of torque lets them swing back towards hanging, never away. The lean keeps gravity's
+# torque, hence the gear, on one side. Joint 3's swing, larger, needs it as much as joint 2's, and
+# the owner holds the robot once for both.
+HANGING = {2: True, 3: True}
 # The axle swing's wheel duty (percent, both motors, model direction): a lean, then sine cycles
 # (Hz, amplitude %, cycles) about it, smaller where the hanging robot swings by itself (about
 # 1.2 Hz for the paper's robot); lean minus amplitude stays above 0 (the gears on one side of their
@@ -368,7 +375,8 @@ def _loop(kind, joint, devices, clock, config, joints, bias_dps, battery_v, rows
                                  'wheels held and the robot hanging?'.format(away, SWING_LIMIT_RAD))
             if not axle and (abs(away - ref) > SWING_LIMIT_RAD / 2 or abs(away) > SWING_LIMIT_RAD):
                 raise JointLimit('joint {} swung to {:.2f} rad, beyond the swing\'s {} rad: its motor could not hold '
-                                 'the link (too heavy, or too far from upright?)'.format(joint, away, SWING_LIMIT_RAD))
+                                 'the link (too heavy, or link 1 not held {}?)'.format(
+                                     joint, away, SWING_LIMIT_RAD, 'upside down' if HANGING[joint] else 'upright'))
         duties = [d_r, d_l, d2, d3]
         try:
             devices.write_duties(duties)

@@ -20,8 +20,9 @@ The pre-flight check (tipbot_fw.preflight, ``python3 -m tipbot_fw check --gains 
 - ``wheel_term_kg_m2`` and ``lever_axle_kg_m`` for the fall's fit (its e = A / Mh), and the
   design's motor constants are in the file's ``parameters``.
 
-A measured value outside its interval (less the fit's own uncertainty) means the gains were not
-made for this robot: the check refuses and says which measurement and by how much.
+A measured value outside its interval, or inside by less than its standard deviation, means the
+gains were not made for this robot, or may hold it only by luck: the check refuses and says which
+measurement and by how much (tipbot_fw.preflight).
 """
 import math
 

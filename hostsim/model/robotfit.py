@@ -19,10 +19,9 @@ their uncertainty; its motors, e.g. from ``identify``) is the prior; the experim
 The nine link parameters (m_i, l_i, J_i) are the maximum a posteriori estimate: least squares in
 their logarithms of the prior's deviations over its standard deviations and of each measurement's
 deviation over its standard deviation: the fit's own (tipbot_fw.bodyfit) and a floor for what the
-fit's model leaves out (MEASUREMENT_FLOOR: 2 % for the fall, 8 % for a joint's lever, as the
-realistic brick's gear play and friction bias them, 5 % for the axle's (the gyro's scale, 2 %, and
-the battery's sag under the near-stalled wheel motors, of which the log has only the start's
-voltage), 30 % for a swing's inertia). The posterior covariance
+fit's model leaves out (MEASUREMENT_FLOOR, tipbot_fw.bodyfit.MODEL_ERROR, which the pre-flight
+check uses too: 2 % for the fall, 8 % for joint 2's lever and 4 % for joint 3's, 5 % for the
+axle's, 30 % for a swing's inertia and 50 % for joint 3's; why, there). The posterior covariance
 (the inverse of the Gauss-Newton matrix at the optimum) goes into the file's ``uncertainty``
 block (hostsim.model.spread), which ``make gains PARAMS=FILE`` uses: its design holds the robots
 two standard deviations along the loosest axes, and its verdict says whether to deploy.
@@ -45,7 +44,7 @@ from hostsim.model.spread import spread_from_doc
 from tipbot_fw import bodyfit, fields
 
 LINK_PARAMETERS = ("m1_kg", "m2_kg", "m3_kg", "l1_m", "l2_m", "l3_m", "j1_kg_m2", "j2_kg_m2", "j3_kg_m2")
-MEASUREMENT_FLOOR = {"fall_ratio": 0.02, "lever": 0.08, "lever1": 0.05, "inertia": 0.30}
+MEASUREMENT_FLOOR = bodyfit.MODEL_ERROR
 DEFAULT_PRIOR_SIGMA = 0.5
 
 
@@ -92,12 +91,12 @@ def measure(params, fall_log=None, swing_logs=()):
                                     lever3=lever3 if joint == 2 else None)
         except bodyfit.FitError as exc:
             raise RobotFitError("%s: %s" % (path, exc))
-        floor = MEASUREMENT_FLOOR["lever1" if joint == 1 else "lever"]
+        floor = MEASUREMENT_FLOOR["lever%d" % joint]
         out["lever%d" % joint] = (fit["lever_kg_m"], math.hypot(fit["lever_se"] / fit["lever_kg_m"], floor), fit)
         inertia = fit["inertia_kg_m2"] - jm
         if inertia > 0:
             out["inertia%d" % joint] = (inertia, math.hypot(fit["inertia_se"] / inertia,
-                                                             MEASUREMENT_FLOOR["inertia"]), fit)
+                                                             MEASUREMENT_FLOOR.get("inertia%d" % joint, MEASUREMENT_FLOOR["inertia"])), fit)
     return out
 
 

@@ -28,10 +28,10 @@ Each firmware run (from its motors' start-up to their stop) gets the robot held 
 pose again, as an owner picks the robot up before restarting it: no run starts lying on the
 floor, where a still gyro and still wheels would look like a robot in balance.
 
---stand holds link 1 upright (the joint swing test); --hang holds the robot upside down by its
-wheels, th1 = pi, link 1 free to swing about the axle (the axle swing, swing-test --joint 1), and
-the robot has "fallen" 90 degrees from hanging; both hold link 1 upside down, the links hanging
-below it (the joint-2 swing, swing-test --joint 2).
+--stand holds link 1 upright; --hang holds the robot upside down by its wheels, th1 = pi, link 1
+free to swing about the axle (the axle swing, swing-test --joint 1), and the robot has "fallen" 90
+degrees from hanging; both hold link 1 upside down, the links hanging below it (the joint swings,
+swing-test --joint 2 and 3).
 
 The gyro: from the fake's start it counts the angle of its first mode, with the scenario's
 bias, until the firmware switches it to GYRO-G&A; the first samples after the switch are
@@ -257,11 +257,11 @@ def main(argv=None):
                     help="release the robot this long after the firmware's start-up at the latest (default %g)"
                     % DEFAULT_HOLD_S)
     ap.add_argument("--write-config", metavar="FILE", help="write the matching firmware configuration to FILE")
-    ap.add_argument("--stand", action="store_true", help="link 1 held upright on a stand (for the swing test, "
-                    "python3 -m tipbot_fw swing-test --joint 3)")
+    ap.add_argument("--stand", action="store_true", help="link 1 held upright on a stand; with --hang, upside "
+                    "down (for the joint swings, python3 -m tipbot_fw swing-test --joint 2 or 3)")
     ap.add_argument("--hang", action="store_true", help="the robot upside down, held by its wheels (for the axle "
                     "swing, python3 -m tipbot_fw swing-test --joint 1); with --stand, link 1 held upside down (for "
-                    "swing-test --joint 2)")
+                    "swing-test --joint 2 and 3)")
     ap.add_argument("--trace", metavar="FILE", help="save the plant's true trajectory (npz) at the end")
     a = ap.parse_args(argv)
     try:

@@ -1,8 +1,8 @@
 """Link 1 held on a stand (the joint swing test, issue 24): a stiff spring and damper on the axle
 and link 1.
 
-The owner clamps link 1 upright (a stand, a vice, a hand braced on the table) while a joint
-motor swings the links above it. In the plant that is a generalized force on d_r, d_l and th1
+The owner clamps link 1 upside down (tipbot_fw.experiments.HANGING; a stand, a vice, a hand
+braced on the table) while a joint motor swings the links above it. In the plant that is a generalized force on d_r, d_l and th1
 pulling them back to where they were held: a stand that gives a little (10 Hz, about critically
 damped for the robot's own inertia about the axle and along the floor), as any clamp and hand
 does, and stiff enough that the links' reactions move link 1 by a fraction of a degree. It is a
@@ -10,7 +10,7 @@ does, and stiff enough that the links' reactions move link 1 by a fraction of a 
 drivetrain plant alike.
 
 The axle swing (the robot upside down, its wheels held in the owner's hands) holds the wheels
-only: ``held=(0, 1)`` (d_r, d_l), link 1 free to turn about the axle; the joint-2 swing holds
+only: ``held=(0, 1)`` (d_r, d_l), link 1 free to turn about the axle; the joint swings hold
 link 1 upside down (q0's th1 = pi). Given the plant's step (``dt_s``), link 1's damper is capped
 where that explicit step would integrate it unstably (the joints limp, heavy links 2 and 3).
 """
