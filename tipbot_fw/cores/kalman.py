@@ -78,6 +78,7 @@ from tipbot_fw.config import motor_polarity
 from tipbot_fw.cores import fixedpoint as fx
 from tipbot_fw.cores.core import Core
 from tipbot_fw.cores.kalman_rows import FLOATS, FLOATS_AT, INPUTS, INTS_AT, REFERENCE_COLUMNS, KalmanRows
+from tipbot_fw.cores.saturation import to_duties
 from tipbot_fw.guard.plausibility import BATTERY_MAX_V, BATTERY_MIN_V
 from tipbot_fw.vocabulary import ACTUATED_INPUTS, FLAG_BITS, STOP_FLAGS
 
@@ -456,9 +457,8 @@ class KalmanCore(Core):
         """The tick's duties (v's first four, rounded) saturated, the fall check, the row: the
         first tick's (step() does the same, written out)."""
         q0, q1, q2, q3, _, _, th1 = _HEAD.unpack_from(self.v_bytes, 0)
-        dlim, ndlim = self.dlims
-        duties = [min(dlim, max(ndlim, q)) for q in (q0, q1, q2, q3)]
-        bits = sum(1 << i for i in range(N_U) if duties[i] != (q0, q1, q2, q3)[i])
+        d0, d1, d2, d3, bits = to_duties((q0, q1, q2, q3), self.dlim)
+        duties = [d0, d1, d2, d3]
         if bits:
             _DUTIES.pack_into(self.v_bytes, 0, *duties)
         lo, hi = self.th1_bounds
